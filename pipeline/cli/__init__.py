@@ -1,0 +1,1 @@
+"""The `mvpd` command: parses, delegates, prints. Nothing imports this package."""

@@ -1,0 +1,7 @@
+"""CLI commands of the scenes area (placeholder until its issue lands)."""
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    """Add this area's commands to the `mvpd` app."""

@@ -1,0 +1,1 @@
+"""Storage: Parquet tables (with explicit, documented schemas), Zarr videos, imports and exports."""

@@ -1,0 +1,113 @@
+"""One video as a Zarr v3 store: `rgb`, `depth`, `panoptic` (+ `depth_clean` with a noisy sensor).
+
+Layout (schemas/zarr_video.md): one frame per chunk, shards of `frames_per_shard` frames, zstd.
+Attributes: schema_version, video_name, scene_id, embodiment (resolved), height_m, intrinsics
+{fx, fy, cx, cy, width, height}, poses (T x 4 x 4 camera-to-world, OpenCV camera axes), and anything
+else the writer passes. Stores are written in a staging folder and committed whole by the runtime.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zarr
+from zarr.codecs import ZstdCodec
+
+ZARR_SCHEMA_VERSION = 1
+ARRAYS: dict[str, tuple[str, int]] = {
+    # name: (dtype, channels; 0 = none)
+    "rgb": ("uint8", 3),
+    "depth": ("uint16", 0),
+    "depth_clean": ("uint16", 0),
+    "panoptic": ("uint32", 0),
+}
+
+
+class VideoWriter:
+    """Creates a video store and appends frames in blocks of whole shards.
+
+    Frames are buffered up to one shard and written shard by shard, so every shard is encoded once.
+    """
+
+    def __init__(self, path: Path, frames: int, width: int, height: int, attributes: dict[str, Any],
+                 arrays: tuple[str, ...] = ("rgb", "depth", "panoptic"), frames_per_shard: int = 16, level: int = 3):
+        self.group = zarr.open_group(str(path), mode="w", zarr_format=3)
+        self.group.attrs.update({"schema_version": ZARR_SCHEMA_VERSION, **attributes})
+        self.shard = frames_per_shard
+        self.arrays = {}
+        for name in arrays:
+            dtype, channels = ARRAYS[name]
+            tail = (height, width, channels) if channels else (height, width)
+            self.arrays[name] = self.group.create_array(
+                name, shape=(frames, *tail), chunks=(1, *tail), shards=(frames_per_shard, *tail),
+                dtype=dtype, compressors=ZstdCodec(level=level), fill_value=0,
+            )
+        self._buffer: dict[str, list[np.ndarray]] = {name: [] for name in arrays}
+        self._written = 0
+
+    def append(self, **frame: np.ndarray) -> None:
+        """Add one frame: one keyword per array (rgb=..., depth=..., panoptic=...)."""
+        for name in self.arrays:
+            self._buffer[name].append(frame[name])
+        if len(self._buffer[next(iter(self.arrays))]) == self.shard:
+            self._flush()
+
+    def _flush(self) -> None:
+        count = len(self._buffer[next(iter(self.arrays))])
+        if count == 0:
+            return
+        for name, array in self.arrays.items():
+            array[self._written:self._written + count] = np.stack(self._buffer[name])
+            self._buffer[name].clear()
+        self._written += count
+
+    def close(self) -> int:
+        """Write what is buffered; returns the number of frames written."""
+        self._flush()
+        return self._written
+
+
+@dataclass
+class Video:
+    """A stored video opened lazily: arrays are Zarr arrays (index them to read)."""
+
+    path: Path
+    group: zarr.Group
+
+    @property
+    def attrs(self) -> dict[str, Any]:
+        return dict(self.group.attrs)
+
+    @property
+    def rgb(self) -> zarr.Array:
+        return self.group["rgb"]  # type: ignore[return-value]
+
+    @property
+    def depth(self) -> zarr.Array:
+        return self.group["depth"]  # type: ignore[return-value]
+
+    @property
+    def panoptic(self) -> zarr.Array:
+        return self.group["panoptic"]  # type: ignore[return-value]
+
+    @property
+    def frames(self) -> int:
+        return int(self.group["panoptic"].shape[0])
+
+    def poses(self) -> np.ndarray:
+        """(T, 4, 4) float64 camera-to-world matrices (OpenCV camera axes)."""
+        return np.asarray(self.group.attrs["poses"], dtype=np.float64)
+
+    def intrinsics(self) -> dict[str, float]:
+        return dict(self.group.attrs["intrinsics"])
+
+
+def open_video(path: str | Path) -> Video:
+    """Open a stored video read-only."""
+    path = Path(path)
+    if not (path / "zarr.json").is_file():
+        raise FileNotFoundError(f"{path}: not a Zarr video store (no zarr.json); was the render unit committed?")
+    return Video(path, zarr.open_group(str(path), mode="r"))

@@ -1,0 +1,1 @@
+"""Runtime: stage contract, run folder, markers, status, locks and the Ray executor."""
