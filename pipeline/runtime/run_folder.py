@@ -59,12 +59,20 @@ class RunFolder:
 
     # ------------------------------------------------------------------------------------ job
     @classmethod
-    def create(cls, root: str | Path, job: Job) -> "RunFolder":
-        """Create (or reopen) a run folder for `job`; refuses a non-empty folder that is not a run."""
+    def prepare(cls, root: str | Path) -> "RunFolder":
+        """Create the folder (or reopen a run); refuses a non-empty folder that is not a run."""
         run = cls(root)
+        if run.root.exists() and not run.root.is_dir():
+            raise RunFolderError(f"{run.root}: is a file, not a run folder; choose a folder path")
         if run.root.exists() and any(run.root.iterdir()) and not (run.root / JOB_FILE).is_file():
             raise RunFolderError(f"{run.root}: exists, is not empty and has no {JOB_FILE}; choose an empty or new folder")
         run.root.mkdir(parents=True, exist_ok=True)
+        return run
+
+    @classmethod
+    def create(cls, root: str | Path, job: Job) -> "RunFolder":
+        """Create (or reopen) a run folder and save `job` in it."""
+        run = cls.prepare(root)
         run.save_job(job)
         return run
 

@@ -1,0 +1,53 @@
+"""Shared console helpers for the CLI: one-line errors, progress bars, tables."""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from typing import Iterator, NoReturn
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from pipeline.runtime.executor import StagePlan, StageReport
+from pipeline.runtime.runner import Observer
+from pipeline.runtime.status import UnitOutcome
+
+console = Console(highlight=False)
+errors = Console(stderr=True, highlight=False)
+
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+
+
+def fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
+    """Print a one-line error and exit (2 = unusable input)."""
+    errors.print(f"[bold red]error:[/] {message}", soft_wrap=True)
+    raise typer.Exit(code)
+
+
+@contextmanager
+def stage_progress() -> Iterator[Observer]:
+    """An observer that shows one progress bar per running stage and a summary line per stage."""
+    progress = Progress(TextColumn("{task.description:<8}"), BarColumn(), MofNCompleteColumn(),
+                        TextColumn("{task.fields[failed]}"), TimeElapsedColumn(), console=console, transient=False)
+    tasks: dict[str, int] = {}
+
+    def start(plan: StagePlan) -> None:
+        skipped = f" ({len(plan.up_to_date)} up to date)" if plan.up_to_date else ""
+        tasks[plan.stage] = progress.add_task(plan.stage + skipped, total=len(plan.to_run) or 1, failed="",
+                                              completed=0 if plan.to_run else 1)
+
+    def unit_done(outcome: UnitOutcome) -> None:
+        task = tasks[outcome.stage]
+        progress.advance(task)
+        if outcome.failed:
+            count = int(progress.tasks[task].fields["failed"].split()[0] or 0) if progress.tasks[task].fields["failed"] else 0
+            progress.update(task, failed=f"{count + 1} failed")
+
+    def end(report: StageReport) -> None:
+        progress.console.print(("[red]" if report.failed else "[green]") + report.summary())
+        for outcome in report.failed:
+            progress.console.print(f"  [red]x[/] {outcome.unit}: {outcome.error_type}: {outcome.message}", soft_wrap=True)
+
+    with progress:
+        yield Observer(on_stage_start=start, on_unit=unit_done, on_stage_end=end)

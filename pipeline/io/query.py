@@ -1,0 +1,61 @@
+"""SQL over a run's Parquet datasets with DuckDB: every dataset is a view of the same name."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import duckdb
+
+from pipeline.runtime.run_folder import RunFolder
+
+
+class QueryError(ValueError):
+    """SQL that DuckDB rejected; the message is DuckDB's first line."""
+
+
+def connect(run: RunFolder) -> duckdb.DuckDBPyConnection:
+    """An in-memory DuckDB connection with one view per Parquet dataset of the run."""
+    connection = duckdb.connect(":memory:")
+    for dataset in run.datasets():
+        pattern = str(run.root / dataset / "part-*.parquet").replace("'", "''")
+        connection.execute(f'CREATE VIEW "{dataset}" AS SELECT * FROM read_parquet(\'{pattern}\', union_by_name = true)')
+    return connection
+
+
+def query(run: RunFolder, sql: str) -> duckdb.DuckDBPyRelation:
+    """Run `sql` against the run's datasets."""
+    try:
+        return connect(run).sql(sql)
+    except duckdb.Error as error:
+        first = str(error).strip().splitlines()[0]
+        known = ", ".join(run.datasets()) or "none yet"
+        raise QueryError(f"{first} (tables in {run.root}: {known})") from None
+
+
+def write_result(relation: duckdb.DuckDBPyRelation, fmt: str, out: Path | None) -> str | None:
+    """Write a result as csv/json/parquet to `out` (csv/json to the returned text when `out` is None)."""
+    table = relation.arrow()
+    if hasattr(table, "read_all"):  # DuckDB >= 1.4 returns a RecordBatchReader
+        table = table.read_all()
+    if fmt == "parquet":
+        if out is None:
+            raise QueryError("--format parquet needs --out FILE.parquet")
+        import pyarrow.parquet as pq
+
+        pq.write_table(table, out)
+        return None
+    if fmt == "csv":
+        import pyarrow.csv as pacsv
+        import io
+
+        buffer = io.BytesIO()
+        pacsv.write_csv(table, buffer)
+        text = buffer.getvalue().decode()
+    else:
+        import json
+
+        text = json.dumps(table.to_pylist(), default=str, indent=1)
+    if out is not None:
+        out.write_text(text)
+        return None
+    return text

@@ -1,0 +1,64 @@
+"""Runs a job's stages in order on one run folder, holding the run lock."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from pipeline.config import Job
+from pipeline.runtime.executor import ProgressCallback, StagePlan, StageReport, run_stage
+from pipeline.runtime.lock import RunLock
+from pipeline.runtime.run_folder import RunFolder
+from pipeline.stages import JOB_STAGES, make_stage
+
+
+@dataclass
+class Observer:
+    """Hooks the console (or a test) uses to follow a run."""
+
+    on_stage_start: Callable[[StagePlan], None] | None = None
+    on_unit: ProgressCallback | None = None
+    on_stage_end: Callable[[StageReport], None] | None = None
+
+
+@dataclass
+class JobReport:
+    """The reports of the stages that ran."""
+
+    run: Path
+    stages: list[StageReport] = field(default_factory=list)
+
+    @property
+    def failed(self) -> int:
+        return sum(len(s.failed) for s in self.stages)
+
+
+def submit(job: Job, run_dir: str | Path, stages: list[str] | None = None, address: str | None = None,
+           observer: Observer | None = None) -> JobReport:
+    """Create (or reopen) the run folder for `job` and run its stages; only stale units run."""
+    run = RunFolder.prepare(run_dir)
+    with RunLock(run.root):
+        run.save_job(job)
+        return _run(job, run, stages or list(JOB_STAGES), force=False, address=address, observer=observer)
+
+
+def rerun(run_dir: str | Path, stage: str, force: bool = False, address: str | None = None,
+          observer: Observer | None = None) -> JobReport:
+    """Run one stage of an existing run again: failed, missing and stale units, or all with `force`."""
+    run = RunFolder.open(run_dir)
+    with RunLock(run.root):
+        return _run(run.job(), run, [stage], force=force, address=address, observer=observer)
+
+
+def _run(job: Job, run: RunFolder, stages: list[str], force: bool, address: str | None,
+         observer: Observer | None) -> JobReport:
+    observer = observer or Observer()
+    report = JobReport(run.root)
+    for name in stages:
+        stage_report = run_stage(make_stage(name, job), run, force=force, address=address,
+                                 on_start=observer.on_stage_start, on_unit=observer.on_unit)
+        report.stages.append(stage_report)
+        if observer.on_stage_end is not None:
+            observer.on_stage_end(stage_report)
+    return report

@@ -1,0 +1,48 @@
+"""A tiny stage for runtime tests: one unit per embodiment, behaviour steered by files in the run.
+
+`control/<unit>.fail` makes the unit raise; `control/<unit>.kill` makes its worker process die once
+(after writing part of its output), as a crashed machine would.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import pyarrow as pa
+
+from pipeline.io.tables import column, register, to_table
+from pipeline.runtime.run_folder import RunFolder
+from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
+
+
+def _register() -> None:
+    register("tiny", [column("unit", pa.string(), "unit id"), column("value", pa.int64(), "a seeded draw")],
+             row="one draw of one tiny unit")
+
+
+_register()
+
+
+class TinyStage(Stage):
+    """Writes one seeded number and one text file per embodiment of the job."""
+
+    name = "tiny"
+    datasets = ("tiny",)
+
+    def units(self, run: RunFolder) -> list[Unit]:
+        return sorted((Unit(e.name, {"placements": list(e.placements)}) for e in self.job.embodiments),
+                      key=lambda u: u.id)
+
+    def run_unit(self, unit: Unit, context: UnitContext) -> UnitResult:
+        _register()  # Ray workers import this module by value: register the table there too
+        control = context.run.root / "control"
+        if (control / f"{unit.id}.fail").exists():
+            raise ValueError(f"{unit.id}: told to fail by {control / (unit.id + '.fail')}")
+        value = int(context.rng().integers(0, 2**62))
+        context.staged_path(f"tiny_files/{unit.id}.txt").write_text(str(value))
+        if (control / f"{unit.id}.kill").exists() and not (control / f"{unit.id}.killed").exists():
+            (control / f"{unit.id}.killed").touch()
+            os.kill(os.getpid(), signal.SIGKILL)
+        context.write_table("tiny", to_table("tiny", [{"unit": unit.id, "value": value}]))
+        return UnitResult(info={"value": value})
