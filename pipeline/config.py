@@ -8,6 +8,7 @@ them in sync.
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 import json
 import math
@@ -66,17 +67,25 @@ class MeshFolderSource(Strict):
     up_axis: Literal["y", "z"] = Field("y", description="up axis of the files")
 
 
+class MvpdReleaseSource(Strict):
+    """A split of an MVPd release read by `mvpd import-mvpd` (the run holds its videos, not scenes)."""
+
+    root: Path = Field(description="MVPd root holding <split>/panoptic_<split>.json")
+    split: str = Field(pattern=r"^[A-Za-z0-9_\-]+$", description="split folder name: train, val or test")
+
+
 class SceneSources(Strict):
     """Where the scenes come from; any combination of sources."""
 
     procedural: ProceduralSource | None = None
     hm3dsem: Hm3dSemSource | None = None
     meshes: MeshFolderSource | None = None
+    mvpd: MvpdReleaseSource | None = Field(None, description="an imported MVPd release split (import-mvpd)")
 
     @model_validator(mode="after")
     def _at_least_one(self) -> "SceneSources":
-        if not (self.procedural or self.hm3dsem or self.meshes):
-            raise ValueError("name at least one scene source (procedural, hm3dsem or meshes)")
+        if not (self.procedural or self.hm3dsem or self.meshes or self.mvpd):
+            raise ValueError("name at least one scene source (procedural, hm3dsem, meshes or mvpd)")
         return self
 
 
@@ -265,14 +274,19 @@ def config_hash(data: object) -> str:
 
 
 def _format_error(source: str, error: ValidationError) -> str:
-    first = error.errors()[0]
+    # An unknown key usually is a misspelt one: report it (with the likely meant key) before the
+    # "missing" error the same typo causes.
+    errors = sorted(error.errors(), key=lambda e: e["type"] != "extra_forbidden")
+    first = errors[0]
     key = ".".join(str(p) for p in first["loc"]) or "(top level)"
     message = first["msg"]
     if first["type"] == "extra_forbidden":
-        message = "unknown key; check its spelling against schemas/job.schema.json"
+        missing = [str(e["loc"][-1]) for e in errors if e["type"] == "missing" and e["loc"][:-1] == first["loc"][:-1]]
+        guess = difflib.get_close_matches(str(first["loc"][-1]), missing, n=1)
+        message = f"unknown key; did you mean {guess[0]!r}?" if guess else "unknown key; check its spelling against schemas/job.schema.json"
     elif first["type"] == "missing":
         message = "required key is missing"
-    more = f" (+{len(error.errors()) - 1} more)" if len(error.errors()) > 1 else ""
+    more = f" (+{len(errors) - 1} more)" if len(errors) > 1 else ""
     return f"{source}: {key}: {message}{more}"
 
 

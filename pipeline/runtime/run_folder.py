@@ -64,7 +64,8 @@ class RunFolder:
         run = cls(root)
         if run.root.exists() and not run.root.is_dir():
             raise RunFolderError(f"{run.root}: is a file, not a run folder; choose a folder path")
-        if run.root.exists() and any(run.root.iterdir()) and not (run.root / JOB_FILE).is_file():
+        is_run = (run.root / JOB_FILE).is_file() or (run.root / STATE).is_dir()
+        if run.root.exists() and any(run.root.iterdir()) and not is_run:
             raise RunFolderError(f"{run.root}: exists, is not empty and has no {JOB_FILE}; choose an empty or new folder")
         run.root.mkdir(parents=True, exist_ok=True)
         return run
