@@ -202,7 +202,7 @@ def _run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[
     from pipeline.runtime.ray_session import ensure_ray
 
     ensure_ray(address)
-    resources = stage.job.runtime.for_stage(stage.name)
+    resources = stage.resources()
     task = ray.remote(execute_unit).options(
         num_cpus=resources.cpus, memory=int(resources.memory_gb * 2**30),
         max_retries=stage.job.runtime.max_retries, retry_exceptions=False, name=f"mvpd.{stage.name}",

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Callable
 
 from pipeline.config import Job
-from pipeline.runtime.executor import ProgressCallback, StagePlan, StageReport, run_stage
+from pipeline.runtime.executor import ProgressCallback, StageOrderError, StagePlan, StageReport, run_stage
 from pipeline.runtime.lock import RunLock
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.stages import JOB_STAGES, make_stage
@@ -56,8 +56,13 @@ def _run(job: Job, run: RunFolder, stages: list[str], force: bool, address: str 
     observer = observer or Observer()
     report = JobReport(run.root)
     for name in stages:
-        stage_report = run_stage(make_stage(name, job), run, force=force, address=address,
-                                 on_start=observer.on_stage_start, on_unit=observer.on_unit)
+        try:
+            stage_report = run_stage(make_stage(name, job), run, force=force, address=address,
+                                     on_start=observer.on_stage_start, on_unit=observer.on_unit)
+        except StageOrderError:
+            if report.failed:  # every unit upstream failed: those failures are the news, not the order
+                break
+            raise
         report.stages.append(stage_report)
         if observer.on_stage_end is not None:
             observer.on_stage_end(stage_report)

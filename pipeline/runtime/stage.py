@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 import pyarrow as pa
 
-from pipeline.config import Job, config_hash
+from pipeline.config import Job, StageResources, config_hash
 
 if TYPE_CHECKING:
     from pipeline.runtime.run_folder import RunFolder
@@ -106,6 +106,10 @@ class Stage(ABC):
     @abstractmethod
     def run_unit(self, unit: Unit, context: UnitContext) -> UnitResult | None:
         """Do the work of one unit, writing only through `context`. Raise to fail the unit."""
+
+    def resources(self) -> StageResources:
+        """CPUs, memory and timeout of one unit (from the job's `runtime.resources`)."""
+        return self.job.runtime.for_stage(self.name)
 
     def settings(self) -> dict[str, Any]:
         """The part of the job this stage's output depends on (hashed into every unit's marker)."""

@@ -13,7 +13,7 @@ from pipeline.runtime.executor import run_stage
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.status import read_status
 from tests.runtime import tiny_stage
-from tests.runtime.tiny_stage import TinyStage
+from tests.runtime.tiny_stage import QuickTimeoutStage, TinyStage
 
 # Ray workers cannot import the tests package: ship the tiny stage's module by value.
 ray.cloudpickle.register_pickle_by_value(sys.modules[tiny_stage.__name__])
@@ -99,3 +99,11 @@ def test_query_answers_sql_over_written_tables(ray_session, run):
     assert result == [(3, "a")]
     statuses = query(run, "select state, count(*) from status group by state").fetchall()
     assert statuses == [("done", 3)]
+
+
+def test_unit_running_past_its_timeout_is_cancelled_and_recorded(ray_session, run):
+    (run.root / "control").mkdir()
+    (run.root / "control" / "c.hang").touch()
+    report = run_stage(QuickTimeoutStage(run.job()), run)
+    assert [(o.unit, o.error_type) for o in report.failed] == [("c", "UnitTimeout")]
+    assert sorted(values(run)) == ["a", "b"] and run.marker("tiny", "c") is None

@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import os
 import signal
+import time
 
 import pyarrow as pa
 
+from pipeline.config import StageResources
 from pipeline.io.tables import column, register, to_table
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
@@ -37,6 +39,8 @@ class TinyStage(Stage):
     def run_unit(self, unit: Unit, context: UnitContext) -> UnitResult:
         _register()  # Ray workers import this module by value: register the table there too
         control = context.run.root / "control"
+        if (control / f"{unit.id}.hang").exists():
+            time.sleep(600)
         if (control / f"{unit.id}.fail").exists():
             raise ValueError(f"{unit.id}: told to fail by {control / (unit.id + '.fail')}")
         value = int(context.rng().integers(0, 2**62))
@@ -46,3 +50,10 @@ class TinyStage(Stage):
             os.kill(os.getpid(), signal.SIGKILL)
         context.write_table("tiny", to_table("tiny", [{"unit": unit.id, "value": value}]))
         return UnitResult(info={"value": value})
+
+
+class QuickTimeoutStage(TinyStage):
+    """The tiny stage with a 3-second unit timeout."""
+
+    def resources(self) -> StageResources:
+        return StageResources(cpus=1, memory_gb=0.1, timeout_s=3)
