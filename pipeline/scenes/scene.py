@@ -7,6 +7,8 @@ Memory (documented bound): per triangle 12 B vertices (shared, ~6 B/face amortis
 4 B object id + 1-2 B material, plus vertex colours (3 B/vertex) or UVs (24 B/face) and textures.
 A 1 M-triangle scene is about 60 MB of arrays plus its textures; the `Scene` is only built when a
 `SceneRef.load()` is called, so listing scenes (sharding) costs nothing until a unit needs one.
+Measured (benchmarks/bench_scenes.py): generating a 1 M-triangle house peaks at about 0.15 GiB of
+process memory, reading a 1 M-triangle HM3DSem trio at about 0.3 GiB (both far under 2 GiB).
 """
 
 from __future__ import annotations

@@ -1,0 +1,273 @@
+"""Export a run's videos as one split of an MVPd release (`mvpd export RUN --mvpd OUT`).
+
+The split is built in a hidden folder beside its final place and renamed into place at the end, so
+`<OUT>/<split>` is either absent, the previous export, or a complete new export: never half-written.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from PIL import Image
+
+from pipeline.io.mvpd.layout import (
+    EMPTY_VIDEOS,
+    EMPTY_VOID_FRACTION,
+    IMAGES_DEPTH,
+    IMAGES_RGB,
+    JPEG_QUALITY,
+    MAX_MVPD_ID,
+    PANOMASKS,
+    ZERO_SHOT,
+    SplitPaths,
+    frame_stem,
+    ids_to_png,
+    mvpd_categories,
+    object_id_to_color,
+    pose_to_mvpd,
+    write_json,
+)
+from pipeline.io.zarr_video import Video, open_video
+from pipeline.runtime.run_folder import RunFolder
+
+log = logging.getLogger(__name__)
+TRAIN_SPLIT = "train"
+READ_BLOCK = 16  # frames read from Zarr at once: one shard of the default layout
+
+
+class MvpdExportError(ValueError):
+    """A run that cannot be exported as asked; the message names what is missing and what to do."""
+
+
+@dataclass
+class VideoExport:
+    """What one exported video adds to the split's JSON files."""
+
+    name: str
+    images: list[dict[str, Any]]
+    annotations: list[dict[str, str]]
+    instance_id_map: dict[Any, dict[str, Any]]  # segment id -> entry (str keys once finished)
+    empty: bool
+
+
+@dataclass
+class ExportSummary:
+    """What an export wrote (returned to the CLI for its one-line summary)."""
+
+    split_folder: Path
+    videos: int = 0
+    frames: int = 0
+    rejected: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def export_release(run_root: Path, out_root: Path, split: str = "test", embodiment: str | None = None,
+                   overwrite: bool = False, on_video: Callable[[str], None] | None = None,
+                   on_start: Callable[[int], None] | None = None) -> ExportSummary:
+    """Write every rendered video of one embodiment of a run as `<out_root>/<split>` in MVPd's layout.
+
+    Args:
+        run_root: the run folder.
+        out_root: the MVPd root; the split folder is created inside it.
+        split: split name; every video goes into it until a split stage exists.
+        embodiment: which embodiment to export; may be omitted when the run has only one (MVPd's video
+            names carry no embodiment, so two embodiments cannot share a split).
+        overwrite: replace an existing `<out_root>/<split>`.
+        on_start, on_video: progress callbacks (number of videos; each finished video's name).
+    """
+    started = time.monotonic()
+    run = RunFolder.open(run_root)
+    chosen = _choose_embodiment(run, embodiment)
+    paths = SplitPaths(Path(out_root).expanduser().resolve(), split)
+    if paths.folder.exists() and not overwrite:
+        raise MvpdExportError(f"{paths.folder}: already exists; delete it or pass --overwrite")
+    videos = _video_names(run, chosen)
+    categories = _object_categories(run)
+    if on_start is not None:
+        on_start(len(videos))
+    staging = paths.root / f".{split}.partial-{os.getpid()}"
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    try:
+        exported = []
+        for name in videos:
+            exported.append(VideoExporter(open_video(run.video_store(chosen, name)), categories, staging).run())
+            if on_video is not None:
+                on_video(name)
+        _write_split_files(staging, split, exported)
+        _swap_into_place(staging, paths.folder)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return ExportSummary(paths.folder, len(exported), sum(len(v.images) for v in exported),
+                         [v.name for v in exported if v.empty], time.monotonic() - started)
+
+
+def _choose_embodiment(run: RunFolder, requested: str | None) -> str:
+    names = [e.name for e in run.job().embodiments]
+    if requested is not None:
+        if requested not in names:
+            raise MvpdExportError(f"{run.root}: no embodiment {requested!r} in the job; "
+                                  f"choose one of {', '.join(names)}")
+        return requested
+    if len(names) > 1:
+        raise MvpdExportError(f"{run.root}: the job has embodiments {', '.join(names)}; choose one with --embodiment")
+    return names[0]
+
+
+def _video_names(run: RunFolder, embodiment: str) -> list[str]:
+    """Committed videos of the embodiment, sorted by name (the `videos` table lists committed ones only)."""
+    table = run.read("videos")
+    names = sorted(
+        name for name, emb in zip(table["video_name"].to_pylist(), table["embodiment"].to_pylist()) if emb == embodiment
+    )
+    if not names:
+        raise MvpdExportError(f"{run.root / 'videos'}: no videos of embodiment {embodiment!r}; "
+                              "run the render stage first")
+    return names
+
+
+def _object_categories(run: RunFolder) -> dict[tuple[str, int], int]:
+    """(scene id, object id) -> mpcat40 category, from the run's `objects` table."""
+    table = run.read("objects")
+    columns = (table[c].to_pylist() for c in ("scene_id", "object_id", "mpcat40_index"))
+    return {(scene, int(obj)): int(category) for scene, obj, category in zip(*columns)}
+
+
+# ------------------------------------------------------------------------------------------ videos
+
+
+class VideoExporter:
+    """Writes the frame files of one video into the split folder and collects its JSON entries."""
+
+    def __init__(self, video: Video, categories: dict[tuple[str, int], int], split_folder: Path):
+        attrs = video.attrs
+        self.video = video
+        self.categories = categories
+        self.name, self.scene = str(attrs["video_name"]), str(attrs["scene_id"])
+        absent = set(attrs.get("absent_arrays", []))
+        # An imported MVPd video remembers its original PNG segment ids, so re-exporting reproduces them.
+        self.segment_ids = {int(k): int(v) for k, v in attrs.get("mvpd_segment_ids", {}).items()}
+        # Arrays an import found absent hold zeros: they are not written as if they were data.
+        wanted = {PANOMASKS: True, IMAGES_RGB: "rgb" not in absent, IMAGES_DEPTH: "depth" not in absent}
+        self.folders = {kind: split_folder / kind / self.name for kind, keep in wanted.items() if keep}
+        self.export = VideoExport(self.name, [], [], {}, False)
+
+    def run(self) -> VideoExport:
+        """Write every frame's files (PNG mask; JPEG colour and PNG depth unless absent); return the entries."""
+        for folder in self.folders.values():
+            folder.mkdir(parents=True)
+        poses = self.video.poses()
+        for start in range(0, self.video.frames, READ_BLOCK):
+            stop = min(start + READ_BLOCK, self.video.frames)
+            panoptic = np.asarray(self.video.panoptic[start:stop])
+            rgb = np.asarray(self.video.rgb[start:stop]) if IMAGES_RGB in self.folders else None
+            depth = np.asarray(self.video.depth[start:stop]) if IMAGES_DEPTH in self.folders else None
+            for offset in range(stop - start):
+                self._write_frame(start + offset, panoptic[offset], None if rgb is None else rgb[offset],
+                                  None if depth is None else depth[offset], poses[start + offset])
+        self._add_unseen_instances()
+        instances = self.export.instance_id_map
+        self.export.instance_id_map = {str(k): instances[k] for k in sorted(instances)}
+        return self.export
+
+    def _write_frame(self, frame: int, panoptic: np.ndarray, rgb: np.ndarray | None, depth: np.ndarray | None,
+                     pose: np.ndarray) -> None:
+        png_ids, present = _to_mvpd_ids(panoptic, self.scene, self.name, self.categories, self.segment_ids)
+        self.export.empty |= float(np.mean(png_ids == 0)) > EMPTY_VOID_FRACTION
+        self.export.instance_id_map.update(present)
+        stem = frame_stem(frame)
+        Image.fromarray(ids_to_png(png_ids)).save(self.folders[PANOMASKS] / f"{stem}.png", format="PNG")
+        if rgb is not None:
+            Image.fromarray(rgb).save(self.folders[IMAGES_RGB] / f"{stem}.jpg", format="JPEG", quality=JPEG_QUALITY,
+                                      subsampling=0)
+        if depth is not None:
+            _write_depth_png(self.folders[IMAGES_DEPTH] / f"{stem}.png", depth)
+        position, rotation = pose_to_mvpd(pose)
+        self.export.images.append({"file_name": f"{stem}.jpg", "camera_position": position,
+                                   "camera_rotation": rotation})
+        self.export.annotations.append({"file_name": f"{stem}.png"})
+
+    def _add_unseen_instances(self) -> None:
+        """An imported video also lists instances its masks never show (MVPd's maps may): keep them listed."""
+        for object_id, segment in self.segment_ids.items():
+            category = self.categories.get((self.scene, object_id), 0)
+            if segment not in self.export.instance_id_map and category > 0:
+                self.export.instance_id_map[segment] = {"category_id": category, "scene_name": self.scene,
+                                                        "color": object_id_to_color(object_id)}
+
+
+def _to_mvpd_ids(panoptic: np.ndarray, scene: str, video: str, categories: dict[tuple[str, int], int],
+                 segment_ids: dict[int, int]) -> tuple[np.ndarray, dict[int, dict[str, Any]]]:
+    """One frame of object ids -> MVPd segment ids, and the instance entries of the ids present.
+
+    Objects without an mpcat40 category become void, as in MVPd (its formatter skips category 0).
+    """
+    unique, inverse = np.unique(panoptic, return_inverse=True)
+    mapped = np.zeros(len(unique), dtype=np.uint32)
+    present: dict[int, dict[str, Any]] = {}
+    for index, object_id in enumerate(int(v) for v in unique):
+        if object_id == 0:
+            continue
+        category = categories.get((scene, object_id))
+        if category is None:
+            raise MvpdExportError(
+                f"video {video}: object {object_id} of scene {scene} is not in the objects table; run the shard stage"
+            )
+        if category == 0:
+            continue
+        segment = segment_ids.get(object_id, object_id)
+        if segment > MAX_MVPD_ID or object_id > MAX_MVPD_ID:
+            raise MvpdExportError(f"video {video}: object id {object_id} does not fit MVPd's 24-bit RGB ids")
+        mapped[index] = segment
+        present[segment] = {"category_id": category, "scene_name": scene, "color": object_id_to_color(object_id)}
+    return mapped[inverse.reshape(panoptic.shape)], present
+
+
+def _write_depth_png(path: Path, depth: np.ndarray) -> None:
+    """uint16 millimetres as a 16-bit greyscale PNG (what MVPd's loader reads with cv2)."""
+    if not cv2.imwrite(str(path), np.ascontiguousarray(depth, dtype=np.uint16)):
+        raise OSError(f"{path}: could not write the depth PNG; check free space and permissions")
+
+
+# ------------------------------------------------------------------------------------- split files
+
+
+def _write_split_files(folder: Path, split: str, exported: list[VideoExport]) -> None:
+    """panoptic_<split>.json, empty_videos.json and zero_shot.json of the split, into `folder`."""
+    panoptic = {
+        "videos": [{"images": v.images, "video_name": v.name} for v in exported],
+        "annotations": [
+            {"annotations": v.annotations, "video_name": v.name, "instance_id_map": v.instance_id_map} for v in exported
+        ],
+        "categories": mvpd_categories(),
+    }
+    write_json(folder / f"panoptic_{split}.json", panoptic)
+    write_json(folder / EMPTY_VIDEOS, {"accepted": [v.name for v in exported if not v.empty],
+                                    "rejected": [v.name for v in exported if v.empty]})
+    # Until a split stage exists no object is zero-shot, so no training video is removed for one.
+    zero_shot: dict[str, Any] = (
+        {"accepted": [v.name for v in exported], "rejected": []} if split == TRAIN_SPLIT else {"zero-shot": []}
+    )
+    write_json(folder / ZERO_SHOT, zero_shot)
+
+
+def _swap_into_place(staging: Path, target: Path) -> None:
+    """Rename the finished split into place; an older export is moved aside first, then deleted."""
+    if not target.exists():
+        os.replace(staging, target)
+        return
+    aside = target.with_name(f".{target.name}.old-{os.getpid()}")
+    shutil.rmtree(aside, ignore_errors=True)
+    os.replace(target, aside)
+    os.replace(staging, target)
+    shutil.rmtree(aside, ignore_errors=True)

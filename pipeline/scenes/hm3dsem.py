@@ -1,0 +1,231 @@
+"""HM3DSem scenes: `<id>.glb` (coloured mesh), `<id>.semantic.glb` (the same geometry, each object
+painted one flat colour, by vertex colours or a texture) and `<id>.semantic.txt` (a header line, then
+`object_id,HEXCOLOR,"raw name",region_id` per object).
+
+Reading: each face of the semantic mesh gets the colour of its vertices (or of its texture at the
+face centre); that colour, as the integer 0xRRGGBB, is the object id when the table lists it. Colours
+missing from the table become void (0) and are counted in `Scene.unknown_colors` (pure black is
+the explicit void colour and not counted). Raw names map to mpcat40 through the Matterport table
+(unmapped names are void categories). When the two meshes do not have the same triangles in the same
+order, each face takes the label of the semantic face with the nearest centre.
+
+Frames: HM3D declares its meshes +Z up. The reader rotates the file's frame into the world (+Y up)
+with `to_world` = (x, y, z) -> (x, z, -y); the writer applies the exact inverse (x, y, z) -> (x, -z, y),
+a permutation with one sign change, so float32 coordinates round-trip bit for bit.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.scenes.categories import category_of
+from pipeline.scenes.glb import GlbMesh, read_glb, write_glb
+from pipeline.scenes.scene import Scene, SceneError, SceneObject
+
+HEADER = "HM3D Semantic Annotations"
+VOID_COLOR = 0x000000
+SEMANTIC_TXT = ".semantic.txt"
+SEMANTIC_GLB = ".semantic.glb"
+
+
+def up_axis_transform(up_axis: str) -> np.ndarray:
+    """4x4 transform from a file frame with the given up axis into the world (+Y up)."""
+    if up_axis == "y":
+        return np.eye(4)
+    if up_axis == "z":
+        return np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
+    raise SceneError(f"up_axis {up_axis!r}: use 'y' or 'z'")
+
+
+def to_world(vertices: np.ndarray, transform: np.ndarray) -> np.ndarray:
+    """Apply a 4x4 transform to (V, 3) float32 vertices; exact for axis permutations."""
+    if np.array_equal(transform, np.eye(4)):
+        return vertices
+    rotation = transform[:3, :3]
+    if np.all(np.isin(rotation, (-1.0, 0.0, 1.0))) and not transform[:3, 3].any():
+        # A signed permutation: move columns instead of multiplying, so no rounding happens.
+        columns = [np.argmax(np.abs(row)) for row in rotation]
+        return np.stack([rotation[i, c] * vertices[:, c] for i, c in enumerate(columns)], 1).astype(np.float32)
+    return (vertices.astype(np.float64) @ rotation.T + transform[:3, 3]).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------------------- reading
+
+
+def _looks_like_row(line: str) -> bool:
+    fields = next(csv.reader([line]), [])
+    if len(fields) != 4 or len(fields[1].strip()) != 6:
+        return False
+    try:
+        int(fields[0]), int(fields[1], 16), int(fields[3])
+    except ValueError:
+        return False
+    return True
+
+
+def read_semantic_table(path: Path) -> dict[int, tuple[str, int]]:
+    """colour (0xRRGGBB) -> (raw name, region) from a `.semantic.txt`; errors name file:line."""
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except FileNotFoundError:
+        raise SceneError(f"{path}: missing semantic table; put the scene's .semantic.txt beside its .glb") from None
+    except UnicodeDecodeError as error:
+        raise SceneError(f"{path}: not UTF-8 text ({error.reason}); re-download the file") from None
+    table: dict[int, tuple[str, int]] = {}
+    # The first line is a header ("HM3D Semantic Annotations"); a file without one starts with data.
+    first = 1 if lines and not _looks_like_row(lines[0]) else 0
+    for number, line in enumerate(lines[first:], start=first + 1):
+        if not line.strip():
+            continue
+        fields = next(csv.reader([line]))
+        try:
+            if len(fields) != 4 or len(fields[1].strip()) != 6:
+                raise ValueError("wrong field count")
+            int(fields[0])
+            color, region = int(fields[1].strip(), 16), int(fields[3])
+        except ValueError:
+            raise SceneError(f"{path}:{number}: expected `object_id,HEXCOLOR,\"raw name\",region_id`, got {line.strip()[:80]!r};"
+                             " fix or delete the line") from None
+        if color in table:
+            raise SceneError(f"{path}:{number}: colour {fields[1]} is listed twice; each object needs its own colour")
+        table[color] = (fields[2], region)
+    return table
+
+
+def _face_colors(mesh: GlbMesh, path: Path) -> np.ndarray:
+    """(F,) int64 0xRRGGBB colour of each semantic face (vertex colour, or texture at the face centre)."""
+    if mesh.vertex_colors is not None:
+        rgb = mesh.vertex_colors[mesh.faces[:, 0]].astype(np.int64)
+    elif mesh.vertex_uvs is not None and mesh.textures:
+        rgb = np.zeros((len(mesh.faces), 3), np.int64)
+        centre = mesh.vertex_uvs[mesh.faces].mean(axis=1)
+        texture_of_face = mesh.vertex_texture[mesh.faces[:, 0]]
+        for index, texture in enumerate(mesh.textures):
+            select = texture_of_face == index
+            h, w = texture.shape[:2]
+            col = np.floor((centre[select, 0] % 1.0) * w).astype(np.int64).clip(0, w - 1)
+            row = np.floor((centre[select, 1] % 1.0) * h).astype(np.int64).clip(0, h - 1)
+            rgb[select] = texture[row, col, :3]
+        untextured = texture_of_face < 0
+        rgb[untextured] = mesh.base_colors[mesh.faces[untextured, 0]]
+    else:
+        rgb = mesh.base_colors[mesh.faces[:, 0]].astype(np.int64)
+    return (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
+
+
+def _align_labels(geometry: GlbMesh, semantic: GlbMesh, semantic_colors: np.ndarray) -> np.ndarray:
+    """Semantic colour for each face of the geometry mesh (same order, or nearest face centre)."""
+    if len(geometry.faces) == len(semantic.faces) and np.array_equal(geometry.faces, semantic.faces) \
+            and np.array_equal(geometry.vertices, semantic.vertices):
+        return semantic_colors
+    from scipy.spatial import cKDTree
+
+    centres = semantic.vertices[semantic.faces].mean(axis=1)
+    _, nearest = cKDTree(centres).query(geometry.vertices[geometry.faces].mean(axis=1))
+    return semantic_colors[nearest]
+
+
+def _appearance(mesh: GlbMesh) -> dict:
+    """Scene colour fields from a GLB: vertex colours, or UVs + textures (+ 1x1 textures for the rest)."""
+    if mesh.vertex_colors is not None:
+        return {"vertex_colors": mesh.vertex_colors}
+    if mesh.vertex_uvs is None:
+        return {"vertex_colors": mesh.base_colors}
+    textures = list(mesh.textures)
+    face_texture = mesh.vertex_texture[mesh.faces[:, 0]].astype(np.int64)
+    untextured = face_texture < 0
+    if untextured.any():
+        # Faces without a texture get a one-pixel texture of their base colour, so one model fits all.
+        colors, inverse = np.unique(mesh.base_colors[mesh.faces[untextured, 0]], axis=0, return_inverse=True)
+        face_texture[untextured] = len(textures) + inverse.reshape(-1)
+        textures += [c.reshape(1, 1, 3).astype(np.uint8) for c in colors]
+    uvs = mesh.vertex_uvs[mesh.faces].copy()
+    uvs[..., 1] = 1.0 - uvs[..., 1]  # glTF v runs down the image; the Scene's v runs up
+    return {"face_uvs": uvs.astype(np.float32), "textures": textures, "face_material": face_texture.astype(np.uint16)}
+
+
+def read_hm3dsem(semantic_txt: Path, up_axis: str = "z") -> Scene:
+    """Read an HM3DSem trio given its `.semantic.txt` path; raises SceneError naming the bad file."""
+    semantic_txt = Path(semantic_txt)
+    if not semantic_txt.name.endswith(SEMANTIC_TXT):
+        raise SceneError(f"{semantic_txt}: expected a *{SEMANTIC_TXT} file of an HM3DSem scene")
+    stem = semantic_txt.name[: -len(SEMANTIC_TXT)]
+    glb_path = semantic_txt.with_name(stem + ".glb")
+    semantic_path = semantic_txt.with_name(stem + SEMANTIC_GLB)
+    for required in (semantic_txt, glb_path, semantic_path):
+        if not required.is_file():
+            raise SceneError(f"{required}: missing; an HM3DSem scene needs {stem}.glb, {stem}{SEMANTIC_GLB} and {stem}{SEMANTIC_TXT}")
+    table = read_semantic_table(semantic_txt)
+    geometry = read_glb(glb_path)
+    semantic = read_glb(semantic_path)
+    for mesh, path in ((geometry, glb_path), (semantic, semantic_path)):
+        if len(mesh.faces) == 0:
+            raise SceneError(f"{path}: the mesh is empty (0 triangles); check the file was exported with geometry")
+        if not np.isfinite(mesh.vertices).all():
+            bad = int((~np.isfinite(mesh.vertices)).any(axis=1).sum())
+            raise SceneError(f"{path}: {bad} vertices are NaN or infinite; repair the mesh before using it")
+    colors = _align_labels(geometry, semantic, _face_colors(semantic, semantic_path))
+    known = np.array(sorted(table), dtype=np.int64)
+    listed = np.isin(colors, known)
+    face_ids = np.where(listed, colors, 0).astype(np.uint32)
+    unknown = np.unique(colors[~listed])
+    transform = up_axis_transform(up_axis)
+    present = np.unique(face_ids[face_ids > 0])
+    objects = {int(c): SceneObject(int(c), table[int(c)][0], category_of(table[int(c)][0]), table[int(c)][1]) for c in present}
+    return Scene(
+        scene_id=stem, vertices=to_world(geometry.vertices, transform), faces=geometry.faces.astype(np.int32),
+        face_object_ids=face_ids, objects=objects, to_world=transform, source="hm3dsem", path=str(semantic_txt),
+        unknown_colors=int((unknown != VOID_COLOR).sum()), **_appearance(geometry),
+    )
+
+
+# ----------------------------------------------------------------------------------------- writing
+
+
+def _split_shared_vertices(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Vertices, faces and colours where no vertex is shared by faces of two objects (flat paint)."""
+    per_vertex = np.zeros(len(scene.vertices), np.int64) - 1
+    per_vertex[scene.faces.reshape(-1)] = np.repeat(scene.face_object_ids.astype(np.int64), 3)
+    if np.array_equal(per_vertex[scene.faces], np.repeat(scene.face_object_ids[:, None].astype(np.int64), 3, 1)):
+        return scene.vertices, scene.faces, scene.vertex_colors
+    flat = scene.faces.reshape(-1)
+    colors = scene.vertex_colors[flat] if scene.vertex_colors is not None else None
+    return scene.vertices[flat], np.arange(len(flat), dtype=np.int64).reshape(-1, 3), colors
+
+
+def write_hm3dsem(scene: Scene, out_dir: str | Path, up_axis: str = "z") -> Path:
+    """Write `out_dir/<id>/<id>.glb`, `.semantic.glb` and `.semantic.txt`; returns the `.semantic.txt` path.
+
+    Object ids must be 24-bit colours (they are painted as 0xRRGGBB); procedural houses are built so.
+    The main GLB carries vertex colours (textured scenes are written with each face's mean colour).
+    """
+    too_large = [i for i in scene.objects if not 0 < i <= 0xFFFFFF]
+    if too_large or (scene.face_object_ids > 0xFFFFFF).any():
+        raise SceneError(f"{scene.scene_id}: object ids must be 1..0xFFFFFF to be painted as colours (e.g. {too_large[:3]})")
+    folder = Path(out_dir) / scene.scene_id
+    folder.mkdir(parents=True, exist_ok=True)
+    vertices, faces, colors = _split_shared_vertices(scene)
+    if colors is None:  # textured scene: bake each face's colour into its own vertices
+        flat = faces.reshape(-1)
+        colors = np.repeat(scene.face_colors(), 3, axis=0)
+        vertices, faces = vertices[flat], np.arange(len(flat)).reshape(-1, 3)
+    from_world = np.linalg.inv(up_axis_transform(up_axis))
+    file_vertices = to_world(np.asarray(vertices, np.float32), np.round(from_world))
+    ids = np.zeros(len(vertices), np.int64)
+    ids[faces.reshape(-1)] = np.repeat(scene.face_object_ids.astype(np.int64), 3)
+    paint = np.stack([(ids >> 16) & 255, (ids >> 8) & 255, ids & 255], 1).astype(np.uint8)
+    write_glb(folder / f"{scene.scene_id}.glb", file_vertices, faces, colors, scene.scene_id)
+    write_glb(folder / f"{scene.scene_id}{SEMANTIC_GLB}", file_vertices, faces, paint, f"{scene.scene_id}-semantic")
+    lines = [HEADER]
+    for number, object_id in enumerate(sorted(scene.objects), start=1):
+        obj = scene.objects[object_id]
+        name = obj.raw_name.replace('"', '""')
+        lines.append(f'{number},{object_id:06X},"{name}",{obj.region}')
+    text_path = folder / f"{scene.scene_id}{SEMANTIC_TXT}"
+    temporary = text_path.with_name(f".{text_path.name}.tmp")
+    temporary.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    temporary.replace(text_path)
+    return text_path

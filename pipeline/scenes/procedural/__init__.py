@@ -1,0 +1,1 @@
+"""Procedural houses: layout (rooms, doors, windows, walls), furniture templates, placement, colours."""

@@ -1,0 +1,170 @@
+"""List the scenes of a job's scene sources, and load one (from a ref, a file or a `scenes` row).
+
+Procedural houses are not stored: a house is regenerated from its seed and options on load, which is
+deterministic and fast (a detail-0.1 house takes well under 2 s). Loaders are module-level functions
+so that a `SceneRef` pickles by reference into a Ray task.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from collections.abc import Mapping
+from typing import Any
+
+from pipeline.config import Hm3dSemSource, MeshFolderSource, ProceduralSource, SceneSources
+from pipeline.scenes.scene import Scene, SceneError, SceneRef
+
+SEMANTIC_TXT = ".semantic.txt"
+SEMANTIC_GLB = ".semantic.glb"
+MESH_SUFFIXES = (".obj", ".ply", ".glb")
+
+
+def procedural_scene_id(seed: int) -> str:
+    """Id of the generated house of a seed: `proc-<seed:06d>`."""
+    return f"proc-{seed:06d}"
+
+
+def list_scene_refs(sources: SceneSources) -> list[SceneRef]:
+    """Every scene of the sources, sorted by scene id; raises SceneError on duplicate ids."""
+    refs: list[SceneRef] = []
+    if sources.procedural is not None:
+        refs.extend(_procedural_refs(sources.procedural))
+    if sources.hm3dsem is not None:
+        refs.extend(_hm3dsem_refs(sources.hm3dsem))
+    if sources.meshes is not None:
+        refs.extend(_mesh_refs(sources.meshes))
+    refs.sort(key=lambda ref: ref.scene_id)
+    ids = [ref.scene_id for ref in refs]
+    duplicates = sorted({i for i in ids if ids.count(i) > 1})
+    if duplicates:
+        raise SceneError(f"scenes: ids {duplicates} come from more than one file; rename the files or drop a source")
+    return refs
+
+
+def _procedural_refs(source: ProceduralSource) -> list[SceneRef]:
+    refs = []
+    for index in range(source.count):
+        seed = source.seed + index
+        options = (
+            ("seed", seed), ("detail", source.detail), ("min_rooms", source.min_rooms),
+            ("max_rooms", source.max_rooms), ("floors", source.floors),
+        )
+        refs.append(SceneRef(procedural_scene_id(seed), "procedural", "", load_procedural, options))
+    return refs
+
+
+def _hm3dsem_refs(source: Hm3dSemSource) -> list[SceneRef]:
+    found = {path.name[: -len(SEMANTIC_TXT)]: path for path in sorted(source.root.rglob(f"*{SEMANTIC_TXT}"))}
+    wanted = source.scenes if source.scenes is not None else sorted(found)
+    missing = [scene_id for scene_id in wanted if scene_id not in found]
+    if missing:
+        raise SceneError(f"{source.root}: no {missing[0]}{SEMANTIC_TXT} found; fix scenes.hm3dsem.scenes or the root")
+    options = (("up_axis", source.up_axis),)
+    return [SceneRef(scene_id, "hm3dsem", str(found[scene_id]), load_hm3dsem, options) for scene_id in wanted]
+
+
+def _mesh_refs(source: MeshFolderSource) -> list[SceneRef]:
+    paths = sorted(p for p in source.root.glob(source.pattern) if p.is_file() and not _is_hm3dsem_part(p))
+    options = (("up_axis", source.up_axis),)
+    return [SceneRef(_mesh_scene_id(path), "mesh", str(path), load_mesh, options) for path in paths]
+
+
+def _is_hm3dsem_part(path: Path) -> bool:
+    return path.name.endswith(SEMANTIC_GLB)
+
+
+def _mesh_scene_id(path: Path) -> str:
+    return path.name[: -len(path.suffix)] if path.suffix else path.name
+
+
+# ------------------------------------------------------------------------------------------ loaders
+
+
+def load_procedural(ref: SceneRef) -> Scene:
+    """Generate the house of a procedural ref (deterministic from its seed and options)."""
+    from pipeline.scenes.procedural.house import generate_house
+
+    return generate_house(
+        seed=int(ref.option("seed")),  # type: ignore[arg-type]
+        detail=float(ref.option("detail", 0.1)),  # type: ignore[arg-type]
+        min_rooms=int(ref.option("min_rooms", 3)),  # type: ignore[arg-type]
+        max_rooms=int(ref.option("max_rooms", 8)),  # type: ignore[arg-type]
+        floors=int(ref.option("floors", 1)),  # type: ignore[arg-type]
+    )
+
+
+def load_hm3dsem(ref: SceneRef) -> Scene:
+    """Read an HM3DSem trio (`<id>.glb`, `<id>.semantic.glb`, `<id>.semantic.txt`)."""
+    from pipeline.scenes.hm3dsem import read_hm3dsem
+
+    return read_hm3dsem(Path(ref.path), up_axis=str(ref.option("up_axis", "z")))
+
+
+def load_mesh(ref: SceneRef) -> Scene:
+    """Read a plain labelled mesh file (OBJ / PLY / GLB + JSON of names)."""
+    from pipeline.scenes.meshes import read_labelled_mesh
+
+    return read_labelled_mesh(Path(ref.path), up_axis=str(ref.option("up_axis", "y")))
+
+
+_LOADERS = {"procedural": load_procedural, "hm3dsem": load_hm3dsem, "mesh": load_mesh}
+
+
+def ref_from_row(row: Mapping[str, Any]) -> SceneRef:
+    """Rebuild the SceneRef of a `scenes` table row (source, path and JSON options)."""
+    source = str(row["source"])
+    if source not in _LOADERS:
+        raise SceneError(f"scenes row {row.get('scene_id')}: unknown source {source!r}; rerun `shard`")
+    options = json.loads(row.get("options") or "{}")
+    return SceneRef(str(row["scene_id"]), source, str(row.get("path") or ""), _LOADERS[source], tuple(sorted(options.items())))
+
+
+def load_scene_row(row: Mapping[str, Any]) -> Scene:
+    """Load (and validate) the scene of one row of the `scenes` table; what plan and render call."""
+    return ref_from_row(row).load()
+
+
+def options_json(ref: SceneRef) -> str:
+    """The ref's options as canonical JSON (stored in the `scenes` table)."""
+    return json.dumps(dict(ref.options), sort_keys=True, separators=(",", ":"))
+
+
+def load_scene_file(path: str | Path, up_axis: str | None = None) -> Scene:
+    """Load a scene from a file path, choosing the reader from the name.
+
+    An HM3DSem trio is recognised by its `.semantic.txt` (or a `.glb` with a `.semantic.txt` beside
+    it, or the `.semantic.glb`); a folder holding exactly one trio works too. Anything else with a
+    mesh suffix is read as a plain labelled mesh. `up_axis` defaults to "z" for HM3DSem, "y" otherwise.
+    """
+    path = Path(path)
+    if path.is_dir():
+        trios = sorted(path.glob(f"*{SEMANTIC_TXT}"))
+        if len(trios) != 1:
+            raise SceneError(f"{path}: holds {len(trios)} *{SEMANTIC_TXT} files; give the scene's file instead")
+        path = trios[0]
+    trio_text = _hm3dsem_text_of(path)
+    if trio_text is not None:
+        from pipeline.scenes.hm3dsem import read_hm3dsem
+
+        scene = read_hm3dsem(trio_text, up_axis=up_axis or "z")
+    elif path.suffix.lower() in MESH_SUFFIXES:
+        from pipeline.scenes.meshes import read_labelled_mesh
+
+        scene = read_labelled_mesh(path, up_axis=up_axis or "y")
+    else:
+        raise SceneError(f"{path}: not a scene file; give a .semantic.txt, .glb, .obj or .ply")
+    scene.validate()
+    return scene
+
+
+def _hm3dsem_text_of(path: Path) -> Path | None:
+    name = path.name
+    if name.endswith(SEMANTIC_TXT):
+        return path
+    if name.endswith(SEMANTIC_GLB):
+        return path.with_name(name[: -len(SEMANTIC_GLB)] + SEMANTIC_TXT)
+    if path.suffix.lower() == ".glb":
+        text = path.with_name(path.stem + SEMANTIC_TXT)
+        return text if text.exists() else None
+    return None
