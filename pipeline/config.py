@@ -171,6 +171,10 @@ class Embodiment(Strict):
         millimetres = [round(h * 1000) for h in self.placements]
         if len(set(millimetres)) != len(millimetres):
             raise ValueError("placements must differ by at least 1 mm (they name the videos)")
+        # The camera is mounted on the body: above body.height it could be above a ceiling the body fits under.
+        if max(self.placements) > self.body.height:
+            raise ValueError(f"placements: a camera at {max(self.placements)} m is above body.height "
+                             f"{self.body.height} m; lower the placement or raise body.height")
         return self
 
 
@@ -187,6 +191,8 @@ class PlanConfig(Strict):
     max_turn: float = Field(0.5, gt=0, description="degrees per frame when turning in place")
     grid_resolution: float = Field(0.05, gt=0, description="metres per cell of the navigable-area grid")
     max_attempts: int = Field(2000, ge=1, description="start/goal draws per scene before giving up")
+    require_ceiling: bool = Field(True, description="floors need a surface above them (keeps robots off roofs); "
+                                                    "turn off for scans with holes in their ceilings")
 
     @model_validator(mode="after")
     def _frames_ordered(self) -> "PlanConfig":
@@ -199,15 +205,18 @@ class RenderConfig(Strict):
     """Rendering: storage and exposure."""
 
     frames_per_shard: int = Field(16, ge=1, le=256, description="Zarr shard length in frames")
-    exposure: float | None = Field(None, gt=0, description="fixed exposure for spot lights; derived when omitted")
+    exposure: float | None = Field(None, gt=0, description="spot light: linear scale from radiance W/(m^2 sr) to full "
+                                   "scale, fixed for the job (schemas/render.md); derived from the brightest spot when omitted")
 
 
 class EvaluateConfig(Strict):
     """VSQ protocol knobs; the defaults are the published evaluator's."""
 
-    ks: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [1, 5, 10, 15])
-    window: int = Field(15, ge=1, description="frames per window; windows start every `window` frames")
-    min_area_fraction: float = Field(0.001, ge=0, lt=1, description="ground-truth ids below this become void")
+    ks: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [1, 5, 10, 15],
+                                                  description="prefix lengths: score the first k frames of each window")
+    window: int = Field(15, ge=1, description="frames per window; windows start while start < T - window")
+    stride: int = Field(15, ge=1, description="frames between window starts")
+    min_area_fraction: float = Field(0.001, ge=0, lt=1, description="ground-truth ids below this fraction of the full frame become void")
     subsample: int = Field(2, ge=1, description="keep every n-th row and column")
 
 

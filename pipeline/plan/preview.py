@@ -1,0 +1,157 @@
+"""Look at a plan: the navigable area (one colour per island) and the floor paths over the scene's
+top-down picture (`pipeline.scenes.preview.top_down_image`), written as a PNG.
+
+Paths are drawn as polylines from their start (green dot) to their goal (red dot); islands are tinted
+over the picture, so walls and furniture stay visible around them.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from pipeline.config import Body, PlanConfig
+from pipeline.io.tables import spec
+from pipeline.plan.navigable import MeshQuery, NavigableArea, NavigableAreaError, compute_navigable_area
+from pipeline.plan.stage import navmesh_path
+from pipeline.runtime.run_folder import RunFolder
+from pipeline.scenes.preview import top_down_image
+from pipeline.scenes.scene import Scene
+
+LOG = logging.getLogger(__name__)
+# top_down_image maps world (x, z) to pixels as (p - low) * scale + MARGIN with scale = (size - 2 MARGIN) / extent.
+MARGIN = 10
+ISLAND_ALPHA = 0.45
+PATH_COLOR = (20, 90, 230)
+START_COLOR = (20, 170, 40)
+GOAL_COLOR = (220, 30, 30)
+
+
+class PlanPreviewError(ValueError):
+    """A preview that cannot be drawn; the message names the run, scene or file and the fix."""
+
+
+@dataclass(frozen=True)
+class PlanPreview:
+    """What a written preview shows."""
+
+    path: Path
+    embodiment: str
+    paths: int
+    islands: int
+    area_m2: float
+
+
+def island_colors(count: int) -> np.ndarray:
+    """(count, 3) uint8 distinct, deterministic colours (golden-ratio hues)."""
+    hues = (np.arange(count) * 0.618033988749895) % 1.0
+    hsv = np.stack([hues * 179, np.full(count, 200), np.full(count, 230)], axis=1).astype(np.uint8)
+    return cv2.cvtColor(hsv[None], cv2.COLOR_HSV2RGB)[0] if count else np.zeros((0, 3), np.uint8)
+
+
+def preview_image(scene: Scene, area: NavigableArea, floor_paths: list[np.ndarray], size: int = 1024) -> np.ndarray:
+    """(H, W, 3) uint8 RGB: the scene from above, navigable islands tinted, paths ((T, 2) x, z) drawn."""
+    image = top_down_image(scene, size)
+    low, high = scene.bounds()
+    scale = (size - 2 * MARGIN) / max(high[0] - low[0], high[2] - low[2], 1e-6)
+
+    def to_pixels(xz: np.ndarray) -> np.ndarray:
+        """World (x, z) -> pixel (column, row) of the top-down picture."""
+        return np.round((xz - low[[0, 2]]) * scale + MARGIN).astype(np.int32)
+
+    _tint_islands(image, area, to_pixels)
+    for points in floor_paths:
+        pixels = to_pixels(points)
+        cv2.polylines(image, [pixels.reshape(-1, 1, 2)], False, PATH_COLOR, 2, cv2.LINE_AA)
+        cv2.circle(image, tuple(int(v) for v in pixels[0]), 5, START_COLOR, -1, cv2.LINE_AA)
+        cv2.circle(image, tuple(int(v) for v in pixels[-1]), 5, GOAL_COLOR, -1, cv2.LINE_AA)
+    return image
+
+
+def _tint_islands(image: np.ndarray, area: NavigableArea, to_pixels: Callable[[np.ndarray], np.ndarray]) -> None:
+    """Blend each navigable cell's island colour into the picture (the top-most layer of each column)."""
+    layers, rows, cols = area.node_cells()
+    colors = island_colors(area.island_count)
+    corners = to_pixels(np.stack(area.cell_centres(rows, cols), axis=1) - area.resolution / 2.0)
+    far = to_pixels(np.stack(area.cell_centres(rows, cols), axis=1) + area.resolution / 2.0)
+    overlay = image.copy()
+    covered = np.zeros(image.shape[:2], dtype=np.uint8)
+    labels = area.islands[layers, rows, cols]
+    for (x0, y0), (x1, y1), label in zip(corners, far, labels):
+        corner, opposite = (int(x0), int(y0)), (int(max(x0, x1 - 1)), int(max(y0, y1 - 1)))
+        cv2.rectangle(overlay, corner, opposite, tuple(int(v) for v in colors[label]), -1)
+        cv2.rectangle(covered, corner, opposite, 1, -1)
+    mask = covered.astype(bool)
+    image[mask] = (ISLAND_ALPHA * overlay[mask] + (1 - ISLAND_ALPHA) * image[mask]).astype(np.uint8)
+
+
+def write_plan_preview(run: RunFolder, scene_id: str, out: Path, embodiment: str | None = None,
+                       size: int = 1024) -> PlanPreview:
+    """Draw the navigable area and the run's paths of one scene (one embodiment) into a PNG."""
+    from pipeline.scenes.sources import load_scene_row
+
+    job = run.job()
+    name = embodiment or job.embodiments[0].name
+    if name not in {e.name for e in job.embodiments}:
+        raise PlanPreviewError(f"{run.root}: the job has no embodiment {name!r}; "
+                               f"use one of {', '.join(e.name for e in job.embodiments)}")
+    body = job.embodiment(name).body
+    scenes = run.read("scenes").to_pylist()
+    rows = [row for row in scenes if row["scene_id"] == scene_id]
+    if not rows:
+        known = ", ".join(sorted(row["scene_id"] for row in scenes)[:5]) or "none: run the shard stage first"
+        raise PlanPreviewError(f"{run.root}: no scene {scene_id!r} in the scenes table (known: {known})")
+    scene = load_scene_row(rows[0])
+    area = _area(run, rows[0], scene, body, job.plan)
+    floor_paths = run_floor_paths(run, scene_id, name)
+    image = preview_image(scene, area, floor_paths, size)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+        raise PlanPreviewError(f"{out}: could not write the PNG; check the folder is writable "
+                               "and the name ends in .png")
+    return PlanPreview(out, name, len(floor_paths), area.island_count, area.area_m2)
+
+
+def _area(run: RunFolder, row: dict, scene: Scene, body: Body, plan: PlanConfig) -> NavigableArea:
+    """The run's cached navigable area of the scene, or a fresh one when the plan stage has not run."""
+    cached = run.root / navmesh_path(row, body, plan)
+    if cached.is_file():
+        try:
+            return NavigableArea.load(cached)
+        except NavigableAreaError as error:
+            LOG.warning("%s; recomputing it for the preview", error)
+    return compute_navigable_area(MeshQuery(scene.vertices, scene.faces), body, plan.grid_resolution,
+                                  plan.require_ceiling)
+
+
+def run_floor_paths(run: RunFolder, scene_id: str, embodiment: str) -> list[np.ndarray]:
+    """(T, 2) floor-plane positions (x, z) of each floor path of a scene in the run, by trajectory index.
+
+    Reads only the plan unit's own part files (`<dataset>/part-<scene_id>.<embodiment>.parquet`), not
+    the whole run's frames.
+    """
+    unit = f"{scene_id}.{embodiment}"
+    trajectories, frames = (_unit_part(run, dataset, unit) for dataset in ("trajectories", "frames"))
+    first_video: dict[int, str] = {}
+    for row in trajectories.select(["trajectory", "video_name"]).to_pylist():
+        first_video.setdefault(row["trajectory"], row["video_name"])  # one placement per floor path is enough
+    paths = []
+    for _, video in sorted(first_video.items()):
+        rows = frames.filter(pc.equal(frames["video_name"], video)).sort_by("frame")
+        paths.append(np.stack([rows["px"].to_numpy(), rows["pz"].to_numpy()], axis=1))
+    return paths
+
+
+def _unit_part(run: RunFolder, dataset: str, unit: str) -> pa.Table:
+    """One unit's part file of a dataset, with the registered schema (empty when the unit wrote none)."""
+    path = run.root / dataset / f"part-{unit}.parquet"
+    schema = spec(dataset).schema
+    return pq.read_table(path, schema=schema) if path.is_file() else schema.empty_table()

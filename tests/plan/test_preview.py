@@ -1,0 +1,39 @@
+"""`mvpd plan preview` on a generated house planned end to end (shard -> plan -> picture)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from typer.testing import CliRunner
+
+from pipeline.cli.main import app
+from pipeline.config import Body, Embodiment, Job, PlanConfig, ProceduralSource, SceneSources
+from pipeline.plan.preview import PATH_COLOR
+from pipeline.runtime.executor import run_unit_locally
+from pipeline.runtime.run_folder import RunFolder
+from pipeline.stages import make_stage
+
+
+def test_preview_draws_the_paths_of_a_planned_house(tmp_path):
+    job = Job(name="preview", seed=0, scenes=SceneSources(procedural=ProceduralSource(count=1, detail=0.05)),
+              embodiments=[Embodiment(name="low", placements=[0.1], body=Body())],
+              plan=PlanConfig(trajectories_per_scene=3, min_frames=20, max_frames=300))
+    run = RunFolder.create(tmp_path / "run", job)
+    for name in ("shard", "plan"):
+        stage = make_stage(name, job)
+        for unit in stage.units(run):
+            marker = run_unit_locally(stage, run, unit)
+    assert marker.info["status"] == "planned"
+    out = tmp_path / "plan.png"
+    result = CliRunner().invoke(app, ["plan", "preview", str(run.root), "proc-000000", "--out", str(out),
+                                      "--size", "400"])
+    assert result.exit_code == 0, result.output
+    assert "3 paths of low" in result.output
+    image = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
+    assert np.all(image == PATH_COLOR, axis=2).sum() > 20  # the paths are drawn
+
+    missing = CliRunner().invoke(app, ["plan", "preview", str(run.root), "nowhere", "--out", str(out)])
+    assert missing.exit_code == 2 and "no scene 'nowhere'" in missing.output
+    unknown = CliRunner().invoke(app, ["plan", "preview", str(run.root), "proc-000000", "--out", str(out),
+                                       "--embodiment", "tall"])
+    assert unknown.exit_code == 2 and "no embodiment 'tall'" in unknown.output
