@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from pipeline.runtime.executor import StageOrderError, plan_stage
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.runtime.run_folder import STATE, RunFolder
 from pipeline.runtime.status import UnitOutcome, read_status
 from pipeline.stages import JOB_STAGES, make_stage
 
@@ -30,7 +30,17 @@ def stage_states(run: RunFolder) -> list[StageState]:
     """The state of every job stage of `run`."""
     job = run.job()
     statuses = read_status(run.root)
-    return [_state(run, make_stage(name, job), statuses) for name in JOB_STAGES]
+    states = [_state(run, make_stage(name, job), statuses) for name in JOB_STAGES]
+    # Stages outside the job (import, evaluate) are shown by what they recorded.
+    recorded = sorted({stage for stage, _ in statuses} | {p.name for p in (run.root / STATE).glob("*") if p.is_dir()})
+    return states + [_recorded_state(run, name, statuses) for name in recorded if name not in JOB_STAGES]
+
+
+def _recorded_state(run: RunFolder, stage: str, statuses: dict[tuple[str, str], UnitOutcome]) -> StageState:
+    state = StageState(stage, done=sorted(run.markers(stage)))
+    state.failed = [o for (name, unit), o in sorted(statuses.items())
+                    if name == stage and o.failed and unit not in state.done]
+    return state
 
 
 def _state(run: RunFolder, stage, statuses: dict[tuple[str, str], UnitOutcome]) -> StageState:

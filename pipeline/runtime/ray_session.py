@@ -18,5 +18,5 @@ def ensure_ray(address: str | None = None, num_cpus: int | None = None) -> None:
     if address:
         ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False)
     else:
-        ray.init(num_cpus=num_cpus, include_dashboard=False, logging_level=logging.WARNING,
+        ray.init(num_cpus=num_cpus, include_dashboard=False, logging_level=logging.ERROR,
                  log_to_driver=False, configure_logging=True)
