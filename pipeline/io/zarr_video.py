@@ -26,10 +26,15 @@ ARRAYS: dict[str, tuple[str, int]] = {
 }
 
 
+class VideoWriteError(ValueError):
+    """A frame that does not fit the store (shape, dtype, count); the message names the array and the fix."""
+
+
 class VideoWriter:
     """Creates a video store and appends frames in blocks of whole shards.
 
-    Frames are buffered up to one shard and written shard by shard, so every shard is encoded once.
+    Frames are buffered up to one shard and written shard by shard, so every shard is encoded once
+    (a partial shard write would re-read and re-encode it). `close` refuses a store with missing frames.
     """
 
     def __init__(self, path: Path, frames: int, width: int, height: int, attributes: dict[str, Any],
@@ -47,9 +52,22 @@ class VideoWriter:
             )
         self._buffer: dict[str, list[np.ndarray]] = {name: [] for name in arrays}
         self._written = 0
+        self.frames = frames
+        self.path = Path(path)
 
     def append(self, **frame: np.ndarray) -> None:
-        """Add one frame: one keyword per array (rgb=..., depth=..., panoptic=...)."""
+        """Add one frame: one keyword per array (rgb=..., depth=..., panoptic=...), exact shape and dtype."""
+        if set(frame) != set(self.arrays):
+            raise VideoWriteError(f"{self.path}: append got arrays {sorted(frame)}, the store has {sorted(self.arrays)}")
+        buffered = len(self._buffer[next(iter(self.arrays))])
+        if self._written + buffered >= self.frames:
+            raise VideoWriteError(f"{self.path}: more than the {self.frames} frames the store was created for")
+        for name, array in self.arrays.items():
+            value = frame[name]
+            # No silent casts: a float depth or an int64 id image would be truncated without a word.
+            if value.shape != array.shape[1:] or value.dtype != array.dtype:
+                raise VideoWriteError(f"{self.path}: {name} frame is {value.dtype}{list(value.shape)}, the store "
+                                      f"holds {array.dtype}{list(array.shape[1:])}; convert it before appending")
         for name in self.arrays:
             self._buffer[name].append(frame[name])
         if len(self._buffer[next(iter(self.arrays))]) == self.shard:
@@ -65,8 +83,11 @@ class VideoWriter:
         self._written += count
 
     def close(self) -> int:
-        """Write what is buffered; returns the number of frames written."""
+        """Write what is buffered; returns the number of frames written (all of them, or it raises)."""
         self._flush()
+        if self._written != self.frames:
+            raise VideoWriteError(f"{self.path}: {self._written} of {self.frames} frames written; "
+                                  "the video is incomplete (render every pose before closing)")
         return self._written
 
 

@@ -1,0 +1,226 @@
+"""Reading a run's videos for training and analysis: lazy arrays, metadata, frame and clip iterators.
+
+    from pipeline import load_video
+    video = load_video("runs/demo", "proc-000000.0000000003.0000001000")
+    rgb = video.rgb[10]                       # (H, W, 3) uint8, read on demand (one Zarr chunk)
+    for item in iter_clips("runs/demo", clip_len=8, stride=4): ...
+
+No torch dependency: iterators yield dicts of numpy arrays. `TorchVideoDataset` exists only when torch is
+importable (it wraps the same clip index).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+import zarr
+
+from pipeline.io.zarr_video import open_video
+
+PIXEL_ARRAYS = ("rgb", "depth", "panoptic")
+
+
+class VideoNotFoundError(LookupError):
+    """A video name (or embodiment) that the run does not hold; the message lists what it does hold."""
+
+
+@dataclass
+class LoadedVideo:
+    """One stored video: lazy Zarr arrays (index them to read) and its metadata.
+
+    Attributes:
+        embodiment, name: the video's key in the run.
+        rgb, depth, panoptic: (T, H, W, 3) uint8, (T, H, W) uint16 mm, (T, H, W) uint32 ids; lazy.
+        depth_clean: the ideal depth when the sensor model made `depth` noisy, else None.
+        poses: (T, 4, 4) float64 camera-to-world (OpenCV camera axes).
+        intrinsics: fx, fy, cx, cy, width, height (pixel centres at u + 0.5).
+        categories: object id -> mpcat40 index of the objects seen in the video.
+        raw_names: object id -> raw name (from the run's `objects` table; empty without it).
+        attributes: every Zarr attribute of the store.
+    """
+
+    embodiment: str
+    name: str
+    path: Path
+    rgb: zarr.Array
+    depth: zarr.Array
+    panoptic: zarr.Array
+    depth_clean: zarr.Array | None
+    poses: np.ndarray
+    intrinsics: dict[str, float]
+    categories: dict[int, int]
+    raw_names: dict[int, str] = field(default_factory=dict)
+    attributes: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def frames(self) -> int:
+        """Number of frames T."""
+        return int(self.panoptic.shape[0])
+
+    def clip(self, start: int, length: int, arrays: Sequence[str] = PIXEL_ARRAYS) -> dict[str, Any]:
+        """Frames [start, start + length) as numpy arrays, with their poses and the video's key."""
+        if start < 0 or length < 1 or start + length > self.frames:
+            raise IndexError(f"{self.name}: clip [{start}, {start + length}) outside 0..{self.frames}")
+        item: dict[str, Any] = {name: np.asarray(getattr(self, name)[start:start + length]) for name in arrays}
+        item.update(embodiment=self.embodiment, video_name=self.name, start=start,
+                    frame=np.arange(start, start + length), poses=self.poses[start:start + length],
+                    intrinsics=self.intrinsics)
+        return item
+
+    def frame(self, index: int, arrays: Sequence[str] = PIXEL_ARRAYS) -> dict[str, Any]:
+        """One frame as numpy arrays (no leading time axis), with its pose."""
+        item = self.clip(index, 1, arrays)
+        for name in (*arrays, "poses"):
+            item[name] = item[name][0]
+        item["frame"] = index
+        return item
+
+
+def _run_root(run: Any) -> Path:
+    """The root folder of a RunFolder or of a path (a Path's own `.root` is "/", so test for paths first)."""
+    path = run if isinstance(run, (str, os.PathLike)) else run.root
+    return Path(path).expanduser().resolve()
+
+
+def list_videos(run: Any) -> list[tuple[str, str]]:
+    """(embodiment, video_name) of every rendered video of a run, sorted (from its `videos` table)."""
+    from pipeline.io.tables import read_dataset
+
+    table = read_dataset(_run_root(run), "videos")
+    return sorted(zip(table.column("embodiment").to_pylist(), table.column("video_name").to_pylist()))
+
+
+def _resolve_embodiment(run: Any, name: str, embodiment: str | None) -> str:
+    root = _run_root(run)
+    if embodiment is not None:
+        if not (root / "videos" / embodiment / f"{name}.zarr").is_dir():
+            raise VideoNotFoundError(f"{root}/videos/{embodiment}/{name}.zarr: no such video; "
+                                     f"`mvpd query {root} \"select embodiment, video_name from videos\"` lists them")
+        return embodiment
+    found = sorted(p.parent.name for p in (root / "videos").glob(f"*/{name}.zarr")) if (root / "videos").is_dir() else []
+    if not found:
+        raise VideoNotFoundError(f"{root}: no rendered video named {name!r}; "
+                                 f"`mvpd query {root} \"select embodiment, video_name from videos\"` lists them")
+    if len(found) > 1:
+        raise VideoNotFoundError(f"{root}: video {name!r} exists for embodiments {', '.join(found)}; pass embodiment= (CLI: --embodiment)")
+    return found[0]
+
+
+def _object_names(root: Path, scene_id: str) -> tuple[dict[int, int], dict[int, str]]:
+    """Categories and raw names of a scene's objects from the run's `objects` table ({} without it)."""
+    folder = root / "objects"
+    if not folder.is_dir():
+        return {}, {}
+    import pyarrow.parquet as pq
+
+    from pipeline.io.tables import spec
+
+    table = pq.read_table(folder, schema=spec("objects").schema, filters=[("scene_id", "=", scene_id)],
+                          columns=["object_id", "mpcat40_index", "raw_name"])
+    ids = table.column("object_id").to_pylist()
+    return (dict(zip(ids, table.column("mpcat40_index").to_pylist())),
+            dict(zip(ids, table.column("raw_name").to_pylist())))
+
+
+def load_video(run: Any, name: str, embodiment: str | None = None) -> LoadedVideo:
+    """Open one video of a run lazily. `run` is a RunFolder or a path; `embodiment` is needed only when
+    several embodiments rendered a video of that name."""
+    root = _run_root(run)
+    embodiment = _resolve_embodiment(root, name, embodiment)
+    video = open_video(root / "videos" / embodiment / f"{name}.zarr")
+    attributes = video.attrs
+    categories = {int(k): int(v) for k, v in attributes.get("object_categories", {}).items()}
+    table_categories, raw_names = _object_names(root, str(attributes.get("scene_id", "")))
+    for object_id in categories:  # the run's objects table is the reference when present
+        categories[object_id] = int(table_categories.get(object_id, categories[object_id]))
+    return LoadedVideo(
+        embodiment=embodiment, name=name, path=video.path, rgb=video.rgb, depth=video.depth, panoptic=video.panoptic,
+        depth_clean=video.group["depth_clean"] if "depth_clean" in video.group else None,  # type: ignore[arg-type]
+        poses=video.poses(), intrinsics=video.intrinsics(), categories=categories,
+        raw_names={k: raw_names[k] for k in categories if k in raw_names}, attributes=attributes,
+    )
+
+
+def clip_index(run: Any, clip_len: int, stride: int | None = None,
+               videos: Sequence[tuple[str, str]] | None = None) -> list[tuple[str, str, int]]:
+    """(embodiment, video_name, start) of every clip of `clip_len` frames, starts every `stride` frames.
+
+    Clips never cross videos; a video shorter than `clip_len` gives none. Deterministic order.
+    """
+    if clip_len < 1:
+        raise ValueError(f"clip_len must be >= 1, got {clip_len}")
+    stride = stride or clip_len
+    from pipeline.io.tables import read_dataset
+
+    table = read_dataset(_run_root(run), "videos")
+    frames = {(e, n): f for e, n, f in zip(table.column("embodiment").to_pylist(),
+                                             table.column("video_name").to_pylist(), table.column("frames").to_pylist())}
+    keys = sorted(frames) if videos is None else list(videos)
+    return [(e, n, start) for e, n in keys for start in range(0, frames[(e, n)] - clip_len + 1, stride)]
+
+
+def iter_clips(run: Any, clip_len: int, stride: int | None = None, videos: Sequence[tuple[str, str]] | None = None,
+               arrays: Sequence[str] = PIXEL_ARRAYS) -> Iterator[dict[str, Any]]:
+    """Yield clips (dicts of numpy arrays with a leading time axis, poses and keys) of a run's videos."""
+    opened: dict[tuple[str, str], LoadedVideo] = {}
+    for embodiment, name, start in clip_index(run, clip_len, stride, videos):
+        if (embodiment, name) not in opened:
+            opened.clear()  # one open video at a time: memory stays flat over a whole run
+            opened[(embodiment, name)] = load_video(run, name, embodiment)
+        yield opened[(embodiment, name)].clip(start, clip_len, arrays)
+
+
+def iter_frames(run: Any, videos: Sequence[tuple[str, str]] | None = None,
+                arrays: Sequence[str] = PIXEL_ARRAYS) -> Iterator[dict[str, Any]]:
+    """Yield every frame of a run's videos (or of `videos`), one dict of numpy arrays per frame."""
+    for clip in iter_clips(run, 1, 1, videos, arrays):
+        for name in (*arrays, "poses"):
+            clip[name] = clip[name][0]
+        clip["frame"] = int(clip["start"])
+        yield clip
+
+
+def _torch_dataset_class() -> type:
+    """Build `TorchVideoDataset` (a map-style Dataset over `clip_index`); raises ImportError without torch."""
+    try:
+        import torch
+        from torch.utils.data import Dataset
+    except ImportError as error:
+        raise ImportError(f"TorchVideoDataset needs torch ({error}); install torch, or use iter_clips") from None
+
+    class TorchVideoDataset(Dataset):  # type: ignore[misc, valid-type]
+        """Clips of a run as torch tensors: rgb (T, 3, H, W) uint8, depth (T, H, W) int32 mm, panoptic (T, H, W) int64."""
+
+        def __init__(self, run: Any, clip_len: int, stride: int | None = None,
+                     videos: Sequence[tuple[str, str]] | None = None):
+            self.run = _run_root(run)
+            self.index = clip_index(self.run, clip_len, stride, videos)
+            self.clip_len = clip_len
+
+        def __len__(self) -> int:
+            return len(self.index)
+
+        def __getitem__(self, item: int) -> dict[str, Any]:
+            embodiment, name, start = self.index[item]
+            clip = load_video(self.run, name, embodiment).clip(start, self.clip_len)
+            return {"rgb": torch.from_numpy(clip["rgb"]).permute(0, 3, 1, 2),
+                    # torch has no uint16 / uint32 arithmetic: widen to signed types that hold every value.
+                    "depth": torch.from_numpy(clip["depth"].astype(np.int32)),
+                    "panoptic": torch.from_numpy(clip["panoptic"].astype(np.int64)),
+                    "poses": torch.from_numpy(clip["poses"]), "video_name": name, "embodiment": embodiment,
+                    "start": start}
+
+    return TorchVideoDataset
+
+
+def __getattr__(name: str) -> Any:
+    # `TorchVideoDataset` is built on first use, so importing this module never imports torch.
+    if name == "TorchVideoDataset":
+        cls = _torch_dataset_class()
+        globals()[name] = cls
+        return cls
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,0 +1,73 @@
+"""Zarr video store: layout (one frame per chunk, shards, zstd), round trip, refusals."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.io.zarr_video import VideoWriteError, VideoWriter, open_video
+
+
+def _frames(count: int, seed: int = 0) -> list[dict[str, np.ndarray]]:
+    rng = np.random.default_rng(seed)
+    return [{"rgb": rng.integers(0, 256, (6, 8, 3), dtype=np.uint8),
+             "depth": rng.integers(0, 65536, (6, 8), dtype=np.uint16),
+             "panoptic": rng.integers(0, 2**32, (6, 8), dtype=np.uint32)} for _ in range(count)]
+
+
+def _write(path: Path, frames: list[dict[str, np.ndarray]], shard: int = 4) -> None:
+    poses = np.tile(np.eye(4), (len(frames), 1, 1)).tolist()
+    writer = VideoWriter(path, len(frames), 8, 6, {"video_name": "v", "poses": poses,
+                                                  "intrinsics": {"fx": 1.0, "fy": 1.0, "cx": 4.0, "cy": 3.0}},
+                         frames_per_shard=shard)
+    for frame in frames:
+        writer.append(**frame)
+    assert writer.close() == len(frames)
+
+
+@pytest.mark.parametrize("count", [3, 4, 10])  # fewer than a shard, exactly one, a partial last shard
+def test_round_trip_and_layout(tmp_path: Path, count: int) -> None:
+    frames = _frames(count)
+    _write(tmp_path / "v.zarr", frames)
+    video = open_video(tmp_path / "v.zarr")
+    assert video.frames == count
+    for name in ("rgb", "depth", "panoptic"):
+        assert np.array_equal(getattr(video, name)[:], np.stack([f[name] for f in frames]))
+    assert video.rgb.chunks == (1, 6, 8, 3) and video.depth.shards == (4, 6, 8)
+    metadata = json.loads((tmp_path / "v.zarr" / "depth" / "zarr.json").read_text())
+    codecs = metadata["codecs"][0]["configuration"]["codecs"]  # inside the sharding codec
+    assert [c["name"] for c in codecs] == ["bytes", "zstd"]
+    assert video.attrs["schema_version"] == 1 and video.poses().shape == (count, 4, 4)
+    # One file per shard on disk: ceil(count / 4) shard files per array.
+    shard_files = [p for p in (tmp_path / "v.zarr" / "rgb" / "c").rglob("*") if p.is_file()]
+    assert len(shard_files) == -(-count // 4)
+
+
+def test_same_frames_give_identical_bytes(tmp_path: Path) -> None:
+    _write(tmp_path / "a.zarr", _frames(5))
+    _write(tmp_path / "b.zarr", _frames(5))
+    files = sorted(p.relative_to(tmp_path / "a.zarr") for p in (tmp_path / "a.zarr").rglob("*") if p.is_file())
+    assert files and all((tmp_path / "a.zarr" / f).read_bytes() == (tmp_path / "b.zarr" / f).read_bytes() for f in files)
+
+
+def test_wrong_dtype_or_shape_or_count_is_refused(tmp_path: Path) -> None:
+    writer = VideoWriter(tmp_path / "v.zarr", 2, 8, 6, {})
+    frame = _frames(1)[0]
+    with pytest.raises(VideoWriteError, match="depth frame is float64"):
+        writer.append(**{**frame, "depth": frame["depth"].astype(np.float64)})
+    with pytest.raises(VideoWriteError, match=r"rgb frame is uint8\[6, 7, 3\]"):
+        writer.append(**{**frame, "rgb": frame["rgb"][:, :7]})
+    writer.append(**frame)
+    with pytest.raises(VideoWriteError, match="1 of 2 frames written"):
+        writer.close()
+    writer.append(**frame)
+    with pytest.raises(VideoWriteError, match="more than the 2 frames"):
+        writer.append(**frame)
+
+
+def test_open_video_names_a_missing_store(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match="not a Zarr video store"):
+        open_video(tmp_path / "missing.zarr")
