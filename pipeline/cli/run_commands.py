@@ -80,8 +80,21 @@ def demo(
     run_dir: Annotated[Path, typer.Option("--run-dir", help="run folder")] = Path("runs/demo"),
     address: Annotated[Optional[str], typer.Option(help="Ray cluster address; local Ray when omitted")] = None,
 ) -> None:
-    """Run the small demo job (generated houses, local Ray, local disk) and say what to look at."""
-    submit_command(DEMO_JOB, run_dir, address, None)
+    """Run the small demo job (generated houses, local Ray, local disk) and write pictures of it."""
+    from pipeline.overview import write_overview
+
+    try:
+        with stage_progress() as observer:
+            report = submit(load_job(DEMO_JOB), run_dir, None, address, observer)
+        if report.failed:
+            _finish(report)
+        pictures = write_overview(RunFolder.open(run_dir), run_dir / "previews")
+    except USAGE_ERRORS as error:
+        fail(str(error))
+    console.print(f"[bold]look at:[/] {len(pictures)} pictures in {run_dir / 'previews'}, e.g. {pictures[-2]}")
+    console.print(f'[bold]query:[/] mvpd query {run_dir} "select embodiment, count(*) videos, sum(frames) frames '
+                  'from videos group by 1"')
+    _finish(report)
 
 
 def rerun_command(
