@@ -1,10 +1,10 @@
 """Evaluate predictions on a run of ours or on an MVPd split, through the stage runtime (Ray).
 
-Both paths run `VsqEvaluator` units (one Ray task per video) with the lead's executor, so videos are
+Both paths run `VsqEvaluator` units (one Ray task per video) with the stage executor, so videos are
 evaluated in parallel, each video is committed atomically with a marker, and a rerun with the same
 inputs only evaluates videos that are not done yet. For an MVPd split there is no run folder, so an
 *evaluation run folder* is created (by default next to the output JSON: `<out>.run/`): it holds a
-placeholder job (only its `evaluate` section matters), the `metrics/` table, markers and logs.
+job naming the split and the VSQ protocol, the `metrics/` table, markers and logs.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import Any, Callable
 import pyarrow as pa
 from pydantic import ValidationError
 
-from pipeline.config import ConfigError, Embodiment, EvaluateConfig, Job, ProceduralSource, SceneSources
+from pipeline.config import ConfigError, Embodiment, EvaluateConfig, Job, MvpdReleaseSource, SceneSources
 from pipeline.evaluate.ground_truth import MvpdSplit
 from pipeline.evaluate.report import EvaluationResult, result_from_table
 from pipeline.evaluate.stage import EvaluationInputs, MvpdVsqEvaluator, VsqEvaluator
@@ -39,9 +39,10 @@ def with_protocol(job: Job, overrides: dict[str, Any] | None) -> Job:
     return job.model_copy(update={"evaluate": config})
 
 
-def evaluation_job(overrides: dict[str, Any] | None = None) -> Job:
-    """Placeholder job of an MVPd evaluation run folder: only `evaluate` is used."""
-    job = Job(name="mvpd-evaluation", scenes=SceneSources(procedural=ProceduralSource()),
+def evaluation_job(mvpd_root: Path, split: str, overrides: dict[str, Any] | None = None) -> Job:
+    """The job of an MVPd evaluation run folder: the release split as its source, the VSQ protocol."""
+    job = Job(name=f"mvpd-evaluation-{split}",
+              scenes=SceneSources(mvpd=MvpdReleaseSource(root=mvpd_root, split=split)),
               embodiments=[Embodiment(name="mvpd")])
     return with_protocol(job, overrides)
 
@@ -63,7 +64,7 @@ def evaluate_mvpd(mvpd_root: str | Path, split: str, predictions: str | Path, wo
                   on_unit: ProgressCallback | None = None) -> EvaluationResult:
     """VSQ of `predictions` on an MVPd split; counts go to `work_dir/metrics/` (an evaluation run folder)."""
     MvpdSplit(mvpd_root, split)  # fails fast, before any folder is created, without panoptic_<split>.json
-    job = evaluation_job(overrides)
+    job = evaluation_job(Path(mvpd_root).resolve(), split, overrides)
     run = RunFolder.create(work_dir, job)
     inputs = EvaluationInputs(str(Path(predictions).resolve()), allow_missing,
                               mvpd_root=str(Path(mvpd_root).resolve()), split=split)
