@@ -1,7 +1,7 @@
 """Speed of VSQ evaluation against the published evaluator's rate (not a test).
 
 Cases:
-  small      ../shared/vsq_cases/small, the input the published evaluator was timed on
+  small      tests/data/vsq_small, the input the published evaluator was timed on
              (`published_evaluator_seconds` for `frames` frames on this 2-core machine).
   realistic  generated: 480x640, ~60 ground-truth objects and ~70 overlapping predicted masks per
              frame, MVPd layout (PNG ground truth, per-frame COCO RLE JSON predictions).
@@ -34,7 +34,7 @@ from pipeline.evaluate.ground_truth import GroundTruthLoader, MvpdSplit  # noqa:
 from pipeline.evaluate.predictions import PredictionSource  # noqa: E402
 from pipeline.evaluate.vsq import VsqProtocol, evaluate_video  # noqa: E402
 
-SMALL = REPO.parent / "shared" / "vsq_cases" / "small"
+SMALL = REPO / "tests" / "data" / "vsq_small"
 RESULTS = REPO / "benchmarks" / "results" / "evaluate.json"
 TARGET_FACTOR = 100.0
 

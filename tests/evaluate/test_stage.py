@@ -20,7 +20,7 @@ from pipeline.io.zarr_video import VideoWriter
 from pipeline.runtime.executor import run_unit_locally
 from pipeline.runtime.run_folder import Marker, RunFolder
 
-CASE = Path(__file__).resolve().parents[3] / "shared" / "vsq_cases" / "small"
+CASE = Path(__file__).resolve().parents[1] / "data" / "vsq_small"
 NAME = "proc-000000.0000000000.0000001000"
 
 

@@ -15,7 +15,7 @@ from pipeline.evaluate.vsq import VsqProtocol, evaluate_video, summarize
 from tests.evaluate.helpers import evaluate_arrays
 from tests.evaluate.reference import reference_video
 
-CASE = Path(__file__).resolve().parents[3] / "shared" / "vsq_cases" / "small"
+CASE = Path(__file__).resolve().parents[1] / "data" / "vsq_small"
 
 
 def _evaluate_case() -> dict:
