@@ -26,7 +26,7 @@ def register(app: typer.Typer) -> None:
 
 @contextmanager
 def _video_progress(label: str) -> Iterator[tuple[Callable[[int], None], Callable[[str], None]]]:
-    """(on_start, on_video) callbacks driving one rich progress bar over videos."""
+    """(on_start, on_video) callbacks driving one rich progress bar over videos (export runs in one process)."""
     from pipeline.cli.console import console
 
     progress = Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[video]}"),
@@ -69,16 +69,24 @@ def import_command(
     split: Annotated[str, typer.Option(help="split folder to read: train, val or test")] = "test",
     embodiment: Annotated[str, typer.Option(help="embodiment name the videos are stored under")] = "mvpd",
     all_units: Annotated[bool, typer.Option("--all", help="re-import videos that are already up to date")] = False,
+    address: Annotated[Optional[str], typer.Option(help="Ray cluster address [default: a local Ray]")] = None,
 ) -> None:
-    """Read one split of an MVPd release into a run folder, so query, stats, preview and evaluate work on it."""
-    from pipeline.cli.console import console, fail
+    """Read one split of an MVPd release into a run folder (one Ray task per video), so query, stats, preview
+    and evaluate work on it. Exit 0 when every unit is done, 1 when some failed (listed), 2 on unusable input."""
+    from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, stage_progress
 
     try:
-        with _video_progress("import") as (on_start, on_video):
-            summary = import_release(root, split, run_dir, embodiment, all_units, on_start=on_start, on_video=on_video)
+        with stage_progress() as observer:
+            summary = import_release(root, split, run_dir, embodiment, all_units, address,
+                                     on_start=observer.on_stage_start, on_unit=observer.on_unit)
+            if observer.on_stage_end is not None:
+                observer.on_stage_end(summary.report)  # the stage's summary line and its failed units
     except USAGE_ERRORS as error:
         fail(str(error))
     absent = f"; absent in the release (stored as zeros): {', '.join(sorted(summary.absent_arrays))}" \
         if summary.absent_arrays else ""
+    failed = f", {len(summary.failed)} failed" if summary.failed else ""
     console.print(f"import: {len(summary.imported)} videos ({summary.frames} frames) imported, "
-                  f"{len(summary.up_to_date)} up to date -> {summary.run_root} in {summary.seconds:.1f} s{absent}")
+                  f"{len(summary.up_to_date)} up to date{failed} -> {summary.run_root} "
+                  f"in {summary.seconds:.1f} s{absent}")
+    raise typer.Exit(EXIT_FAILED if summary.failed else EXIT_OK)

@@ -1,4 +1,7 @@
-"""MVPd release export and import: pose convention, id encoding, round trip, the real example, bad input."""
+"""MVPd release export and import: pose convention, id encoding, round trip, the real example, bad input.
+
+Imports run the `import` stage on Ray (the session's `ray_session`), one task per video.
+"""
 
 from __future__ import annotations
 
@@ -29,7 +32,7 @@ from pipeline.io.tables import to_table, write_part
 from pipeline.io.zarr_video import VideoWriter, open_video
 from pipeline.runtime.run_folder import RunFolder
 
-SAMPLE = Path("/work/shared/vsq_cases/small/MVPd")
+SAMPLE = Path(__file__).resolve().parents[1] / "data" / "vsq_small" / "MVPd"
 WIDTH, HEIGHT, FRAMES = 64, 48, 5
 SCENE = "00800-TINYscene01"
 # Object ids are HM3DSem colours 0xRRGGBB; category 0 (unmapped) becomes void in MVPd.
@@ -175,9 +178,10 @@ def exported(tiny_run: tuple[RunFolder, dict], tmp_path_factory: pytest.TempPath
 
 
 @pytest.fixture(scope="module")
-def reimported(exported: Path, tmp_path_factory: pytest.TempPathFactory) -> RunFolder:
+def reimported(exported: Path, tmp_path_factory: pytest.TempPathFactory, ray_session) -> RunFolder:
     run_root = tmp_path_factory.mktemp("back") / "run"
-    import_release(exported, "test", run_root, embodiment="cam")
+    summary = import_release(exported, "test", run_root, embodiment="cam")
+    assert sorted(summary.imported) == sorted(VIDEOS) and summary.failed == []
     return RunFolder.open(run_root)
 
 
@@ -289,9 +293,10 @@ def test_export_of_an_object_missing_from_the_objects_table_fails_cleanly(tiny_r
 
 
 @pytest.fixture(scope="module")
-def sample_run(tmp_path_factory: pytest.TempPathFactory) -> RunFolder:
+def sample_run(tmp_path_factory: pytest.TempPathFactory, ray_session) -> RunFolder:
     run_root = tmp_path_factory.mktemp("sample") / "run"
-    import_release(SAMPLE, "test", run_root)
+    summary = import_release(SAMPLE, "test", run_root)
+    assert len(summary.imported) == 3 and summary.failed == []
     return RunFolder.open(run_root)
 
 
@@ -317,6 +322,7 @@ def test_reimport_is_idempotent(sample_run: RunFolder) -> None:
     before = {d: sample_run.read(d).num_rows for d in ("videos", "frames", "segments", "objects")}
     summary = import_release(SAMPLE, "test", sample_run.root)
     assert summary.imported == [] and len(summary.up_to_date) == 3
+    assert summary.report.outcomes == [] and summary.report.skipped == 4  # nothing ran: 3 videos + 1 scene
     assert {d: sample_run.read(d).num_rows for d in before} == before
     videos = [f"00903-SAMPLEsc0003.{t:010d}.{h:010d}" for t, h in ((0, 100), (1, 1000), (2, 100))]
     assert sorted(sample_run.markers("import")) == ["00903-SAMPLEsc0003", *videos]  # one per video, one per scene
@@ -348,19 +354,51 @@ def test_missing_panoptic_json_is_a_one_line_error_naming_the_file(tmp_path: Pat
     assert not (tmp_path / "run").exists()
 
 
-def test_a_broken_video_fails_alone_and_leaves_nothing_half_written(tmp_path: Path) -> None:
+def test_a_broken_video_fails_alone_and_leaves_nothing_half_written(tmp_path: Path, ray_session) -> None:
     root = tmp_path / "MVPd"
     shutil.copytree(SAMPLE, root)
     broken = f"00903-SAMPLEsc0003.{1:010d}.{1000:010d}"
     (root / "test" / "panomasksRGB" / broken / "0000000004.png").unlink()
-    with pytest.raises(MvpdFormatError, match="0000000004.png: no such file"):
-        import_release(root, "test", tmp_path / "run")
+    summary = import_release(root, "test", tmp_path / "run")
+    assert [(o.unit, o.error_type) for o in summary.failed] == [(broken, "MvpdFormatError")]
+    message = summary.failed[0].message
+    assert "0000000004.png: no such file" in message and "\n" not in message
     run = RunFolder.open(tmp_path / "run")
-    assert [v["video_name"] for v in run.read("videos").to_pylist()] == [f"00903-SAMPLEsc0003.{0:010d}.{100:010d}"]
-    assert not run.video_store("mvpd", broken).exists()
-    assert list((run.root / "_staging" / "import").iterdir()) == []
+    others = [f"00903-SAMPLEsc0003.{t:010d}.{h:010d}" for t, h in ((0, 100), (2, 100))]
+    assert sorted(v["video_name"] for v in run.read("videos").to_pylist()) == others  # the others imported
+    assert broken not in {f["video_name"] for f in run.read("frames").to_pylist()}
+    assert not run.video_store("mvpd", broken).exists() and run.marker("import", broken) is None
+    staging = run.root / "_staging" / "import"
+    assert not staging.exists() or list(staging.iterdir()) == []
     status = {row["unit"]: row for row in run.read("status").to_pylist()}
     assert status[broken]["state"] == "failed" and status[broken]["error_type"] == "MvpdFormatError"
+    assert status[broken]["message"] == message and (run.root / status[broken]["log_path"]).is_file()
+    assert all(status[video]["state"] == "done" for video in others)
+
+
+def test_cli_lists_a_failed_video_exits_1_and_a_fixed_release_imports_only_it(tmp_path: Path, ray_session) -> None:
+    root = tmp_path / "MVPd"
+    shutil.copytree(SAMPLE, root)
+    broken = f"00903-SAMPLEsc0003.{1:010d}.{1000:010d}"
+    mask = root / "test" / "panomasksRGB" / broken / "0000000004.png"
+    mask.unlink()
+    app = typer.Typer()
+    mvpd_io.register(app)
+    arguments = ["import-mvpd", str(root), "--split", "test", str(tmp_path / "run")]
+    result = CliRunner().invoke(app, arguments)
+    assert result.exit_code == 1
+    output = result.output.replace("\n", "")
+    assert f"{broken}: MvpdFormatError" in output and "0000000004.png: no such file" in output
+    shutil.copy(SAMPLE / "test" / "panomasksRGB" / broken / mask.name, mask)
+    result = CliRunner().invoke(app, arguments)
+    assert result.exit_code == 0, result.output
+    summary = import_release(root, "test", tmp_path / "run")  # everything is done now: nothing runs
+    assert summary.report.outcomes == [] and summary.failed == []
+    run = RunFolder.open(tmp_path / "run")
+    assert run.marker("import", broken).attempt == 2  # the failed attempt, then the one that imported it
+    assert [m.attempt for u, m in sorted(run.markers("import").items()) if u != broken] == [1, 1, 1]
+    assert sorted(v["video_name"] for v in run.read("videos").to_pylist()) == sorted(
+        [f"00903-SAMPLEsc0003.{t:010d}.{h:010d}" for t, h in ((0, 100), (1, 1000), (2, 100))])
 
 
 def test_cli_reports_the_missing_file_and_exits_2(tmp_path: Path) -> None:

@@ -1,17 +1,17 @@
 """Import one split of an MVPd release into a run folder (`mvpd import-mvpd ROOT --split test RUN`).
 
-Each video is one unit of the `import` stage: its Zarr store and its table parts are written into a
-staging folder and committed whole by the run folder, then its marker is written. A re-import skips
-videos whose marker matches (same annotation entries, same arrays present) and replaces the others,
-so rows are never duplicated. Objects are one unit per scene (they are shared by the scene's videos).
+`MvpdImporter` is the `import` stage, run by the shared executor like every other stage: one Ray task
+per video (unit id = video name: its Zarr store and its `videos`, `frames`, `frame_stats`, `segments`
+parts) and one per scene (unit id = scene id: its `objects` part, shared by the scene's videos). The
+panoptic JSON is read once, in the driver; each unit's params carry its own entry, so its config hash
+changes exactly when that entry (or the arrays present) changes, and a re-import runs only those units.
+Staging, commit, markers, status rows, per-unit logs and retries of dead workers are the executor's.
 The mapping between the two layouts is documented in schemas/mvpd.md.
 """
 
 from __future__ import annotations
 
 import logging
-import shutil
-import socket
 import time
 from collections import Counter, defaultdict
 from collections.abc import Callable
@@ -24,17 +24,8 @@ import numpy as np
 import pyarrow as pa
 from PIL import Image
 from pydantic import ValidationError
-from scipy import ndimage
 
-from pipeline.config import (
-    ConfigError,
-    Embodiment,
-    Job,
-    MvpdReleaseSource,
-    SceneSources,
-    Sensor,
-    config_hash,
-)
+from pipeline.config import ConfigError, Embodiment, Job, MvpdReleaseSource, SceneSources, Sensor
 from pipeline.io.mvpd.layout import (
     MVPD_HFOV_DEGREES,
     MvpdFormatError,
@@ -48,16 +39,20 @@ from pipeline.io.mvpd.layout import (
     read_json,
     require,
 )
-from pipeline.io.tables import spec, to_table, write_part
+from pipeline.io.segments import DenseLabels, FrameSegments, frame_segments
+from pipeline.io.tables import spec, to_table
 from pipeline.io.zarr_video import VideoWriter
+from pipeline.runtime.executor import ProgressCallback, StagePlan, StageReport, run_stage
 from pipeline.runtime.lock import RunLock
-from pipeline.runtime.run_folder import Marker, RunFolder, RunFolderError
-from pipeline.runtime.status import UnitOutcome, read_status, write_status
+from pipeline.runtime.run_folder import RunFolder, RunFolderError
+from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
+from pipeline.runtime.status import UnitOutcome
 from pipeline.scenes.categories import STUFF_CATEGORIES, categories
 
 log = logging.getLogger(__name__)
 STAGE = "import"
 DEFAULT_EMBODIMENT = "mvpd"
+OPTIONAL_ARRAYS = ("rgb", "depth")
 
 
 class MvpdImportError(ValueError):
@@ -73,33 +68,50 @@ class ReleaseVideo:
     images: list[dict[str, Any]]
     masks: list[str]
     segments: dict[int, tuple[int, int]]  # PNG segment id -> (our object id, category)
-    entry_hash: str
+
+    def params(self, arrays: list[str]) -> dict[str, Any]:
+        """JSON-able unit params: everything a worker needs to import the video without the split's JSON."""
+        return {"kind": "video", "video_name": self.video_name, "images": self.images, "masks": self.masks,
+                "segments": [[segment, obj, category] for segment, (obj, category) in sorted(self.segments.items())],
+                "arrays": arrays}
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any], source: Path) -> "ReleaseVideo":
+        """The video back from `params` (inside the worker)."""
+        return cls(parse_video_name(params["video_name"], source), params["video_name"], params["images"],
+                   params["masks"], {int(s): (int(o), int(c)) for s, o, c in params["segments"]})
 
 
 @dataclass
 class ImportSummary:
-    """What an import did (returned to the CLI for its one-line summary)."""
+    """What an import did (returned to the CLI for its summary); unit lists name videos only."""
 
     run_root: Path
+    report: StageReport
     imported: list[str] = field(default_factory=list)
     up_to_date: list[str] = field(default_factory=list)
+    failed: list[UnitOutcome] = field(default_factory=list)  # every failed unit (videos and scenes)
     frames: int = 0
     absent_arrays: set[str] = field(default_factory=set)
     seconds: float = 0.0
 
 
 def import_release(root: Path, split: str, run_root: Path, embodiment: str = DEFAULT_EMBODIMENT, force: bool = False,
-                   on_start: Callable[[int], None] | None = None,
-                   on_video: Callable[[str], None] | None = None) -> ImportSummary:
+                   address: str | None = None, on_start: Callable[[StagePlan], None] | None = None,
+                   on_unit: ProgressCallback | None = None) -> ImportSummary:
     """Read `<root>/<split>` of an MVPd release into the run folder `run_root` (created when new).
+
+    Videos are imported in parallel as Ray tasks; a video that fails is recorded in the run's status
+    (with its one-line message) and leaves nothing behind, while the others are imported.
 
     Args:
         root: the MVPd root (holds `<split>/panoptic_<split>.json`).
         split: the split folder to read; every video of the run belongs to it.
         run_root: the run folder to create or update.
         embodiment: embodiment name the videos are stored under (`videos/<embodiment>/...`).
-        force: re-import videos whose marker says they are up to date.
-        on_start, on_video: progress callbacks (number of videos; each handled video's name).
+        force: re-import units whose marker says they are up to date.
+        address: Ray cluster address (a local Ray when None).
+        on_start, on_unit: progress callbacks of `run_stage` (the plan; each finished unit's outcome).
     """
     started = time.monotonic()
     paths = SplitPaths(Path(root).expanduser().resolve(), split)
@@ -108,23 +120,123 @@ def import_release(root: Path, split: str, run_root: Path, embodiment: str = DEF
     width, height = _frame_size(paths, videos[0])
     job = release_job(paths, embodiment, videos, width, height)
     run = _open_run(Path(run_root), job)
-    summary = ImportSummary(run.root)
-    if on_start is not None:
-        on_start(len(videos))
+    stage = MvpdImporter(job, videos)
+    plans: list[StagePlan] = []
+
+    def start(plan: StagePlan) -> None:
+        plans.append(plan)
+        if on_start is not None:
+            on_start(plan)
+
     with RunLock(run.root):
-        outcomes: dict[str, UnitOutcome] = {}
-        try:
-            for video in videos:
-                _import_unit(run, job, paths, video, (width, height), force, summary, outcomes)
-                if on_video is not None:
-                    on_video(video.video_name)
-            _import_objects(run, videos, force)
-        finally:
-            # Written even when a video fails, so the run's status names it and what went wrong.
-            previous = {unit: outcome for (_, unit), outcome in read_status(run.root, STAGE).items()}
-            write_status(run.root, STAGE, {**previous, **outcomes})
-    summary.seconds = time.monotonic() - started
-    return summary
+        report = run_stage(stage, run, force=force, address=address, on_start=start, on_unit=on_unit)
+    return _summary(run, {v.video_name for v in videos}, plans[0], report, time.monotonic() - started)
+
+
+def _summary(run: RunFolder, video_names: set[str], plan: StagePlan, report: StageReport,
+             seconds: float) -> ImportSummary:
+    markers = run.markers(STAGE)
+    imported = [o.unit for o in report.outcomes if not o.failed and o.unit in video_names]
+    return ImportSummary(
+        run.root, report, imported, [u for u in plan.up_to_date if u in video_names], report.failed,
+        frames=sum(markers[u].rows.get("frames", 0) for u in imported if u in markers),
+        absent_arrays={a for u in imported if u in markers for a in markers[u].info.get("absent_arrays", [])},
+        seconds=seconds,
+    )
+
+
+# ------------------------------------------------------------------------------------ the stage
+
+
+class MvpdImporter(Stage):
+    """The `import` stage: one unit per video of the split (Zarr store + tables), one per scene (objects).
+
+    The job is the imported run's (`release_job`): `scenes.mvpd` names the release root and split,
+    its single embodiment the camera. Pass `videos` when the driver has already read the split's JSON.
+    """
+
+    name = STAGE
+    datasets = ("videos", "frames", "frame_stats", "segments", "objects")
+
+    def __init__(self, job: Job, videos: list[ReleaseVideo] | None = None):
+        super().__init__(job)
+        source = job.scenes.mvpd
+        if source is None:
+            raise MvpdImportError(f"job {job.name}: has no scenes.mvpd source; the import stage reads an MVPd "
+                                  "release (mvpd import-mvpd ROOT --split S RUN)")
+        self.paths = SplitPaths(Path(source.root), source.split)
+        self._videos = videos
+
+    def __getstate__(self) -> dict[str, Any]:
+        # The stage is shipped to every worker: leave the (possibly large) parsed JSON in the driver.
+        return {**self.__dict__, "_videos": None}
+
+    @property
+    def videos(self) -> list[ReleaseVideo]:
+        """The split's videos, read from its panoptic JSON once per driver."""
+        if self._videos is None:
+            data = read_json(self.paths.annotations, f"{self.paths.split}/panoptic_{self.paths.split}.json")
+            self._videos = read_release_videos(data, self.paths.annotations)
+        return self._videos
+
+    @property
+    def embodiment(self) -> Embodiment:
+        """The camera the videos are stored under (an imported job has exactly one)."""
+        return self.job.embodiments[0]
+
+    def units(self, run: RunFolder) -> list[Unit]:
+        """One unit per video (id = video name), one per scene (id = scene id), sorted by id."""
+        videos = [Unit(v.video_name, v.params(_present_arrays(self.paths, v.video_name))) for v in self.videos]
+        scenes = [Unit(scene, {"kind": "objects", "scene_id": scene, "objects": objects})
+                  for scene, objects in scene_objects(self.videos).items()]
+        clash = sorted({u.id for u in videos} & {u.id for u in scenes})
+        if clash:
+            raise MvpdFormatError(f"{self.paths.annotations}: {clash[0]} is both a video name and a scene id; "
+                                  "rename the scene")
+        return sorted(videos + scenes, key=lambda u: u.id)
+
+    def settings(self) -> dict[str, Any]:
+        """What every unit's output depends on besides its params: the camera, the shard size, the source."""
+        assert self.job.scenes.mvpd is not None
+        return {"embodiment": self.embodiment.model_dump(mode="json"),
+                "frames_per_shard": self.job.render.frames_per_shard,
+                "source": self.job.scenes.mvpd.model_dump(mode="json")}
+
+    def run_unit(self, unit: Unit, context: UnitContext) -> UnitResult:
+        """Stage one video's store and table parts, or one scene's objects part."""
+        if unit.params["kind"] == "objects":
+            rows = [_object_row(unit.params["scene_id"], obj, category) for obj, category in unit.params["objects"]]
+            context.write_table("objects", _table("objects", rows))
+            context.log.info("scene %s: %s objects", unit.params["scene_id"], len(rows))
+            return UnitResult()
+        video = ReleaseVideo.from_params(unit.params, self.paths.annotations)
+        arrays = list(unit.params["arrays"])
+        absent = [a for a in OPTIONAL_ARRAYS if a not in arrays]
+        context.log.info("video %s: %s frames from %s; absent arrays: %s", video.video_name, len(video.images),
+                         self.paths.folder, absent or "none")
+        sensor = self.embodiment.sensor
+        VideoImporter(self.paths, video, self.embodiment, self.job.render.frames_per_shard,
+                      (sensor.width, sensor.height), arrays).write(context)
+        return UnitResult(info={"absent_arrays": absent})
+
+
+def scene_objects(videos: list[ReleaseVideo]) -> dict[str, list[list[int]]]:
+    """Scene id -> sorted [object id, category] of every (scene, colour) the split's videos show."""
+    by_scene: dict[str, dict[int, Counter]] = defaultdict(lambda: defaultdict(Counter))
+    for video in videos:
+        for object_id, category in video.segments.values():
+            by_scene[video.name.scene_id][object_id][category] += 1
+    return {scene: [[object_id, _category(scene, object_id, counts)] for object_id, counts in sorted(objects.items())]
+            for scene, objects in sorted(by_scene.items())}
+
+
+def _category(scene: str, object_id: int, counts: Counter) -> int:
+    # Videos of one scene should agree on an object's category; if not, the most frequent (then lowest) wins.
+    category = min(counts, key=lambda c: (-counts[c], c))
+    if len(counts) > 1:
+        log.warning("scene %s object %06x has categories %s in different videos; using %s", scene, object_id,
+                    dict(counts), category)
+    return category
 
 
 # ------------------------------------------------------------------------------------ the JSON
@@ -163,8 +275,7 @@ def _release_video(name: str, entry: dict, annotation: dict, source: Path, where
         require(image, "camera_rotation", list, source, f"{where}.images[{i}]")
     instance_map = require(annotation, "instance_id_map", dict, source, f"annotations[{name}]")
     segments = _segment_ids(name, instance_map, source)
-    entry_hash = config_hash({"images": images, "annotations": masks, "instance_id_map": instance_map})
-    return ReleaseVideo(parse_video_name(name, source), name, images, masks, segments, entry_hash)
+    return ReleaseVideo(parse_video_name(name, source), name, images, masks, segments)
 
 
 def _segment_ids(video: str, instance_map: dict, source: Path) -> dict[int, tuple[int, int]]:
@@ -230,41 +341,6 @@ def _open_run(run_root: Path, job: Job) -> RunFolder:
 # ----------------------------------------------------------------------------------- one video
 
 
-def _import_unit(run: RunFolder, job: Job, paths: SplitPaths, video: ReleaseVideo, size: tuple[int, int],
-                 force: bool, summary: ImportSummary, outcomes: dict[str, UnitOutcome]) -> None:
-    """Import one video unless its marker says it is up to date; commit, then write its marker."""
-    embodiment = job.embodiments[0]
-    arrays = _present_arrays(paths, video.video_name)
-    unit_hash = config_hash({"entry": video.entry_hash, "arrays": arrays,
-                             "embodiment": embodiment.model_dump(mode="json")})
-    marker = run.marker(STAGE, video.video_name)
-    if not force and marker is not None and marker.config_hash == unit_hash \
-            and all((run.root / p).exists() for p in marker.outputs):
-        summary.up_to_date.append(video.video_name)
-        outcomes[video.video_name] = UnitOutcome(STAGE, video.video_name, "done", marker.attempt,
-                                                 seconds=marker.seconds)
-        return
-    started = time.monotonic()
-    staging = run.staging(STAGE, video.video_name)
-    attempt = (marker.attempt + 1) if marker is not None else 1
-    try:
-        rows = VideoImporter(paths, video, embodiment, job.render.frames_per_shard, size, arrays).write(staging)
-    except BaseException as error:
-        shutil.rmtree(staging, ignore_errors=True)  # nothing of a failed video reaches the run
-        outcomes[video.video_name] = UnitOutcome(STAGE, video.video_name, "failed", attempt, type(error).__name__,
-                                                 str(error), seconds=time.monotonic() - started)
-        raise
-    outputs = run.commit(staging, marker.outputs if marker is not None else [])
-    seconds = time.monotonic() - started
-    run.write_marker(Marker(STAGE, video.video_name, unit_hash, _code_version(), outputs, rows, round(seconds, 3),
-                            attempt, socket.gethostname(), time.time(),
-                            {"absent_arrays": [a for a in ("rgb", "depth") if a not in arrays]}))
-    outcomes[video.video_name] = UnitOutcome(STAGE, video.video_name, "done", attempt, seconds=seconds)
-    summary.imported.append(video.video_name)
-    summary.frames += len(video.images)
-    summary.absent_arrays.update(a for a in ("rgb", "depth") if a not in arrays)
-
-
 def _present_arrays(paths: SplitPaths, video: str) -> list[str]:
     """Which arrays the release has for this video: the mask always, colour and depth when their folders exist."""
     arrays = ["panoptic"]
@@ -286,32 +362,33 @@ class VideoImporter:
         self.frames_per_shard = frames_per_shard
         self.width, self.height = size
         self.arrays = arrays
+        self.labels = DenseLabels.from_categories({obj: category for obj, category in video.segments.values()})
         fx, fy, cx, cy = embodiment.sensor.intrinsics()
         self.intrinsics = {"fx": fx, "fy": fy, "cx": cx, "cy": cy, "width": self.width, "height": self.height}
 
-    def write(self, staging: Path) -> dict[str, int]:
+    def write(self, context: UnitContext) -> None:
         """Stage `videos/<embodiment>/<name>.zarr` and the parts of videos, frames, frame_stats, segments."""
-        name = self.video.video_name
         poses = [pose_from_mvpd(i["camera_position"], i["camera_rotation"]) for i in self.video.images]
-        relative = Path("videos") / self.embodiment.name / f"{name}.zarr"
-        writer = VideoWriter(staging / relative, len(poses), self.width, self.height, self._attributes(poses),
+        relative = f"videos/{self.embodiment.name}/{self.video.video_name}.zarr"
+        store = context.staged_path(relative)
+        writer = VideoWriter(store, len(poses), self.width, self.height, self._attributes(poses),
                              frames_per_shard=self.frames_per_shard)
         segments, stats = [], []
         for frame in range(len(poses)):
             ids, rgb, depth = self._read_frame(frame)
             writer.append(rgb=rgb, depth=depth, panoptic=ids)
-            segments.extend(self._segment_rows(frame, ids))
-            stats.append(self._stats_row(frame, ids, depth))
+            found = frame_segments(ids, self.labels)
+            segments.extend(self._segment_rows(frame, found))
+            stats.append(self._stats_row(frame, found, depth))
         writer.close()
         tables = {
-            "videos": [self._video_row(relative, _folder_bytes(staging / relative))],
+            "videos": [self._video_row(relative, _folder_bytes(store))],
             "frames": [self._frame_row(frame, pose) for frame, pose in enumerate(poses)],
             "frame_stats": stats,
             "segments": segments,
         }
         for dataset, rows in tables.items():
-            write_part(staging, dataset, name, _table(dataset, rows))
-        return {dataset: len(rows) for dataset, rows in tables.items()}
+            context.write_table(dataset, _table(dataset, rows))
 
     def _attributes(self, poses: list[np.ndarray]) -> dict[str, Any]:
         video = self.video
@@ -324,7 +401,7 @@ class VideoImporter:
             "poses": [pose.tolist() for pose in poses],
             "source": {"format": "mvpd", "root": str(self.paths.root), "split": self.paths.split},
             # Arrays the release lacks are stored as zeros; readers check this list before trusting them.
-            "absent_arrays": [a for a in ("rgb", "depth") if a not in self.arrays],
+            "absent_arrays": [a for a in OPTIONAL_ARRAYS if a not in self.arrays],
             # Our id is the HM3DSem colour; the original PNG ids are kept so an export reproduces the files.
             "mvpd_segment_ids": {str(obj): seg for seg, (obj, _) in sorted(video.segments.items())},
         }
@@ -380,13 +457,13 @@ class VideoImporter:
     def _key(self) -> dict[str, str]:
         return {"embodiment": self.embodiment.name, "video_name": self.video.video_name}
 
-    def _video_row(self, store: Path, size: int) -> dict[str, Any]:
+    def _video_row(self, store: str, size: int) -> dict[str, Any]:
         name = self.video.name
         return {
             **self._key(), "scene_id": name.scene_id, "trajectory": name.trajectory, "height_m": name.height_m,
             "illumination": "ambient", "sensor_model": self.embodiment.sensor.model, "frames": len(self.video.images),
             "width": self.width, "height": self.height, **{k: self.intrinsics[k] for k in ("fx", "fy", "cx", "cy")},
-            "exposure": float("nan"), "store_path": str(store), "bytes": size, "render_seconds": 0.0,
+            "exposure": float("nan"), "store_path": store, "bytes": size, "render_seconds": 0.0,
         }
 
     def _frame_row(self, frame: int, pose: np.ndarray) -> dict[str, Any]:
@@ -394,34 +471,18 @@ class VideoImporter:
         px, py, pz = pose[:3, 3]
         return {**self._key(), "frame": frame, "px": px, "py": py, "pz": pz, "qw": qw, "qx": qx, "qy": qy, "qz": qz}
 
-    def _segment_rows(self, frame: int, ids: np.ndarray) -> list[dict[str, Any]]:
-        categories_by_object = {obj: category for obj, category in self.video.segments.values()}
-        return [
-            {**self._key(), "frame": frame, "object_id": obj, "category": categories_by_object[obj], "area": area,
-             "x0": x0, "y0": y0, "x1": x1, "y1": y1}
-            for obj, area, x0, y0, x1, y1 in frame_segments(ids)
-        ]
+    def _segment_rows(self, frame: int, found: FrameSegments) -> list[dict[str, Any]]:
+        rows = []
+        for k, object_id in enumerate(found.object_ids):
+            x0, y0, x1, y1 = (int(v) for v in found.boxes[k])
+            rows.append({**self._key(), "frame": frame, "object_id": int(object_id),
+                         "category": int(found.categories[k]), "area": int(found.areas[k]),
+                         "x0": x0, "y0": y0, "x1": x1, "y1": y1})
+        return rows
 
-    def _stats_row(self, frame: int, ids: np.ndarray, depth: np.ndarray) -> dict[str, Any]:
-        return {**self._key(), "frame": frame, "render_seconds": 0.0, "void_fraction": float(np.mean(ids == 0)),
-                "visible_objects": int(len(np.unique(ids[ids > 0]))),
-                "valid_depth_fraction": float(np.mean(depth > 0))}
-
-
-def frame_segments(ids: np.ndarray) -> list[tuple[int, int, int, int, int, int]]:
-    """(object id, area, x0, y0, x1, y1) of every non-void id of a frame; x1, y1 exclusive; sorted by id."""
-    unique, inverse = np.unique(ids, return_inverse=True)
-    inverse = inverse.reshape(ids.shape)
-    areas = np.bincount(inverse.ravel(), minlength=len(unique))
-    boxes = ndimage.find_objects(inverse + 1)  # label i + 1 is unique[i]; one pass for every box
-    rows = []
-    for index, object_id in enumerate(int(v) for v in unique):
-        if object_id == 0:
-            continue
-        rows_slice, cols_slice = boxes[index]
-        rows.append((object_id, int(areas[index]), cols_slice.start, rows_slice.start,
-                     cols_slice.stop, rows_slice.stop))
-    return rows
+    def _stats_row(self, frame: int, found: FrameSegments, depth: np.ndarray) -> dict[str, Any]:
+        return {**self._key(), "frame": frame, "render_seconds": 0.0, "void_fraction": found.void_pixels / depth.size,
+                "visible_objects": len(found.object_ids), "valid_depth_fraction": float(np.mean(depth > 0))}
 
 
 def _folder_bytes(folder: Path) -> int:
@@ -438,42 +499,9 @@ def _table(dataset: str, rows: list[dict[str, Any]]) -> pa.Table:
     return to_table(dataset, rows)
 
 
-def _code_version() -> str:
-    from pipeline.runtime.executor import code_version  # imported late: the executor pulls in Ray
 
-    return code_version()
-
-
-# ------------------------------------------------------------------------------------- objects
-
-
-def _import_objects(run: RunFolder, videos: list[ReleaseVideo], force: bool) -> None:
-    """One `objects` part per scene: every (scene, colour) the split's videos show, with its category."""
-    by_scene: dict[str, dict[int, Counter]] = defaultdict(lambda: defaultdict(Counter))
-    for video in videos:
-        for object_id, category in video.segments.values():
-            by_scene[video.name.scene_id][object_id][category] += 1
-    for scene, objects in sorted(by_scene.items()):
-        rows = [_object_row(scene, object_id, counts) for object_id, counts in sorted(objects.items())]
-        unit_hash = config_hash({"objects": [(r["object_id"], r["mpcat40_index"]) for r in rows]})
-        marker = run.marker(STAGE, scene)
-        if not force and marker is not None and marker.config_hash == unit_hash \
-                and all((run.root / p).exists() for p in marker.outputs):
-            continue
-        staging = run.staging(STAGE, scene)
-        write_part(staging, "objects", scene, _table("objects", rows))
-        outputs = run.commit(staging, marker.outputs if marker is not None else [])
-        run.write_marker(Marker(STAGE, scene, unit_hash, _code_version(), outputs, {"objects": len(rows)}, 0.0,
-                                (marker.attempt + 1) if marker is not None else 1, socket.gethostname(), time.time()))
-
-
-def _object_row(scene: str, object_id: int, counts: Counter) -> dict[str, Any]:
+def _object_row(scene: str, object_id: int, category: int) -> dict[str, Any]:
     """An objects row from MVPd's instance entries: the split files carry no raw names or geometry."""
-    # Videos of one scene should agree on an object's category; if not, the most frequent (then lowest) wins.
-    category = min(counts, key=lambda c: (-counts[c], c))
-    if len(counts) > 1:
-        log.warning("scene %s object %06x has categories %s in different videos; using %s", scene, object_id,
-                    dict(counts), category)
     nan = float("nan")
     return {
         "scene_id": scene, "object_id": object_id, "raw_name": "", "mpcat40_index": category,

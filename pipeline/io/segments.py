@@ -1,0 +1,71 @@
+"""Per-frame segment statistics (the rows of the `segments` table): area and bounding box per object id.
+
+Shared by the renderer (frames it draws) and the MVPd importer (frames it reads), so both write the
+same numbers for the same pixels. Labels are *dense*: the frame's object ids mapped to indices into a
+sorted id list that starts with 0 (void), so the statistics are bincounts in O(pixels), with no sort.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Protocol
+
+import numpy as np
+
+
+class SegmentLabels(Protocol):
+    """What `frame_segments` needs to know about the ids a frame may hold (e.g. render's `SceneLabels`)."""
+
+    dense_ids: np.ndarray  # (K + 1,) uint32, sorted, dense_ids[0] == 0 (void)
+    dense_categories: np.ndarray  # (K + 1,) category of each id (0 for void)
+
+
+@dataclass(frozen=True)
+class DenseLabels:
+    """`SegmentLabels` built from an {object id: category} map (the ids a video may show)."""
+
+    dense_ids: np.ndarray
+    dense_categories: np.ndarray
+
+    @classmethod
+    def from_categories(cls, categories: Mapping[int, int]) -> "DenseLabels":
+        """Labels of the given objects plus void (id 0, category 0)."""
+        ids = np.array(sorted({0, *(int(i) for i in categories)}), np.uint32)
+        return cls(ids, np.array([categories.get(int(i), 0) if i else 0 for i in ids], np.int32))
+
+
+@dataclass
+class FrameSegments:
+    """Per-object statistics of one frame (arrays of length K, one entry per visible object, by id)."""
+
+    object_ids: np.ndarray
+    categories: np.ndarray
+    areas: np.ndarray
+    boxes: np.ndarray  # (K, 4) int32 x0, y0, x1, y1 (inclusive-exclusive)
+    void_pixels: int
+
+
+def frame_segments(panoptic: np.ndarray, labels: SegmentLabels, dense: np.ndarray | None = None) -> FrameSegments:
+    """Area and bounding box of every object visible in a panoptic frame, in O(pixels) (no sort).
+
+    Args:
+        panoptic: (H, W) uint32 ids; every id must be one of `labels.dense_ids`.
+        dense: the same frame as dense label indices (render's RenderedFrame.dense), when the caller has it.
+    """
+    height, width = panoptic.shape
+    if dense is None:
+        dense = np.searchsorted(labels.dense_ids, panoptic).astype(np.int32)
+    count = len(labels.dense_ids)
+    areas = np.bincount(dense.ravel(), minlength=count)
+    visible = np.flatnonzero(areas[1:]) + 1
+    # Occupancy of (row, label) and (column, label) pairs by two bincounts over offset labels.
+    rows = np.bincount((dense + (np.arange(height, dtype=np.int32) * count)[:, None]).ravel(),
+                       minlength=height * count).reshape(height, count)[:, visible] > 0
+    columns = np.bincount((dense + (np.arange(width, dtype=np.int32) * count)[None, :]).ravel(),
+                          minlength=width * count).reshape(width, count)[:, visible] > 0
+    boxes = np.stack([
+        columns.argmax(axis=0), rows.argmax(axis=0),
+        width - columns[::-1].argmax(axis=0), height - rows[::-1].argmax(axis=0),
+    ], axis=1).astype(np.int32)
+    return FrameSegments(labels.dense_ids[visible], labels.dense_categories[visible], areas[visible].astype(np.int64),
+                         boxes, int(areas[0]))

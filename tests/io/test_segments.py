@@ -1,0 +1,40 @@
+"""Per-frame segment statistics shared by the renderer and the MVPd importer: hand-counted cases."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.io.segments import DenseLabels, frame_segments
+
+
+def test_areas_boxes_and_categories_of_a_hand_drawn_frame() -> None:
+    ids = np.zeros((4, 6), np.uint32)
+    ids[0:2, 1:4] = 0xC4FBAF  # rows 0..1, columns 1..3
+    ids[3, 5] = 7  # one pixel in the corner
+    labels = DenseLabels.from_categories({7: 5, 0xC4FBAF: 39, 0x00FF00: 2})  # 0x00FF00 is not in this frame
+    found = frame_segments(ids, labels)
+    assert found.object_ids.tolist() == [7, 0xC4FBAF]  # by id; absent objects give no row
+    assert found.categories.tolist() == [5, 39]
+    assert found.areas.tolist() == [1, 2 * 3]
+    assert found.boxes.tolist() == [[5, 3, 6, 4], [1, 0, 4, 2]]  # x0, y0, x1, y1 with x1, y1 exclusive
+    assert found.void_pixels == 4 * 6 - 1 - 6
+
+
+def test_an_all_void_frame_has_no_segments() -> None:
+    found = frame_segments(np.zeros((3, 2), np.uint32), DenseLabels.from_categories({9: 1}))
+    assert found.object_ids.tolist() == [] and found.boxes.shape == (0, 4) and found.void_pixels == 6
+
+
+def test_random_frames_match_a_brute_force_count() -> None:
+    rng = np.random.default_rng(3)
+    pool = np.array([0, 3, 0x1A2B3C, 0xFFFFFF], np.uint32)
+    labels = DenseLabels.from_categories({3: 1, 0x1A2B3C: 2, 0xFFFFFF: 40})
+    for _ in range(20):
+        ids = rng.choice(pool, size=(7, 9))
+        found = frame_segments(ids, labels)
+        assert found.object_ids.tolist() == [i for i in np.unique(ids).tolist() if i != 0]
+        for k, object_id in enumerate(found.object_ids):
+            rows, columns = np.nonzero(ids == object_id)
+            assert found.areas[k] == len(rows)
+            assert found.boxes[k].tolist() == [columns.min(), rows.min(), columns.max() + 1, rows.max() + 1]
+        assert found.void_pixels == int((ids == 0).sum())
