@@ -29,10 +29,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline.config import Embodiment, Illumination, Sensor  # noqa: E402
+from pipeline.io.segments import frame_segments  # noqa: E402
 from pipeline.io.zarr_video import VideoWriter  # noqa: E402
 from pipeline.render.lighting import SurfaceColors  # noqa: E402
 from pipeline.render.raycaster import SceneRaycaster, available_cpus  # noqa: E402
-from pipeline.render.renderer import SceneLabels, VideoRenderer, camera_of, frame_segments  # noqa: E402
+from pipeline.render.renderer import (  # noqa: E402
+    SceneLabels, VideoRenderer, camera_of, limit_worker_threads)
 from pipeline.render.stage import ZSTD_LEVEL, directory_bytes, video_attributes  # noqa: E402
 from pipeline.runtime.executor import UnitFailedError  # noqa: E402
 from pipeline.scenes.scene import Scene, SceneObject  # noqa: E402
@@ -186,6 +188,7 @@ def run_ours(scene: Scene, poses: np.ndarray, body: Embodiment, exposure: float,
     """
     started = time.perf_counter()
     raycaster = SceneRaycaster(scene, threads=threads)
+    limit_worker_threads(raycaster.threads)  # as the render stage's workers do
     raycaster.cast(camera_of(body), poses[0])
     colors, labels = SurfaceColors(scene), SceneLabels(scene)
     build = time.perf_counter() - started
@@ -260,8 +263,18 @@ def run_workers(count: int, poses: np.ndarray) -> dict[str, Any]:
 
 
 def run_pyrender(scene: Scene, poses: np.ndarray, body: Embodiment) -> dict[str, float | str]:
-    """The same poses with pyrender + OSMesa: a lit colour + depth pass and a flat (SEG) label pass."""
+    """The same poses with pyrender + OSMesa: a lit colour + depth pass and a flat (SEG) label pass.
+
+    Set up as a careful user would, so the ratio is fair: Mesa's llvmpipe rasterizer on every CPU (not
+    softpipe), PyOpenGL's per-call error checking off (pyrender sets a dozen uniforms per draw, and the
+    checks made the Python side cost more than the rasterization), every mesh uploaded once before the
+    clock starts, the colour pass as one merged mesh (one draw call), the label pass one node per object
+    (pyrender's SEG mode colours whole nodes).
+    """
     os.environ["PYOPENGL_PLATFORM"] = "osmesa"
+    os.environ.setdefault("PYOPENGL_ERROR_CHECKING", "0")  # read when OpenGL is first imported
+    os.environ.setdefault("GALLIUM_DRIVER", "llvmpipe")
+    os.environ.setdefault("LP_NUM_THREADS", str(available_cpus()))
     try:
         import pyrender
         import trimesh
@@ -269,22 +282,16 @@ def run_pyrender(scene: Scene, poses: np.ndarray, body: Embodiment) -> dict[str,
         return {"error": f"pyrender not importable: {error}"}
     fx, fy, cx, cy = body.sensor.intrinsics()
     pr_scene = pyrender.Scene(ambient_light=[0.2, 0.2, 0.2], bg_color=[0, 0, 0, 0])
+    colour_node = pr_scene.add(_pyrender_colour_mesh(scene, pyrender, trimesh))
     seg_map = {}
-    face_colors = scene.face_colors()
     order = np.argsort(scene.face_object_ids, kind="stable")
     bounds = np.flatnonzero(np.diff(scene.face_object_ids[order])) + 1
     for faces in np.split(order, bounds):
         object_id = int(scene.face_object_ids[faces[0]])
         mesh = trimesh.Trimesh(scene.vertices, scene.faces[faces], process=False)
-        if scene.vertex_colors is not None:
-            # Shared vertices with vertex colours (smooth): the cheapest input for a rasterizer.
-            mesh.visual.vertex_colors = np.c_[scene.vertex_colors, np.full(len(scene.vertices), 255, np.uint8)]
-            mesh.remove_unreferenced_vertices()
-            node = pr_scene.add(pyrender.Mesh.from_trimesh(mesh, smooth=True))
-        else:
-            mesh.remove_unreferenced_vertices()
-            mesh.visual.face_colors = np.c_[face_colors[faces], np.full(len(faces), 255, np.uint8)]
-            node = pr_scene.add(pyrender.Mesh.from_trimesh(mesh, smooth=False))
+        mesh.remove_unreferenced_vertices()
+        # No colours (SEG draws a uniform per node) and shared vertices: the fewest vertices to transform.
+        node = pr_scene.add(pyrender.Mesh.from_trimesh(mesh, smooth=True))
         # The label pass draws each node in a flat colour that encodes its id (R + 256 G + 65536 B).
         seg_map[node] = [object_id & 255, (object_id >> 8) & 255, (object_id >> 16) & 255]
     # OpenGL camera looks down -Z with +Y up: flip the OpenCV pose's y and z axes.
@@ -294,7 +301,8 @@ def run_pyrender(scene: Scene, poses: np.ndarray, body: Embodiment) -> dict[str,
     light_node = pr_scene.add(pyrender.SpotLight(color=np.ones(3), intensity=20.0, outerConeAngle=np.pi / 2 - 0.01),
                               pose=poses[0] @ flip)
     renderer = pyrender.OffscreenRenderer(body.sensor.width, body.sensor.height)
-    renderer.render(pr_scene)  # compile shaders and upload buffers outside the timing
+    # Compile shaders and upload every buffer outside the timing (pyrender uploads on first use).
+    _pyrender_frame(pyrender, renderer, pr_scene, colour_node, seg_map)
     from OpenGL import GL
 
     gl_renderer = GL.glGetString(GL.GL_RENDERER).decode()
@@ -302,13 +310,36 @@ def run_pyrender(scene: Scene, poses: np.ndarray, body: Embodiment) -> dict[str,
     for pose in poses:
         pr_scene.set_pose(camera_node, pose @ flip)
         pr_scene.set_pose(light_node, pose @ flip)
-        color, depth = renderer.render(pr_scene)
-        labels, _ = renderer.render(pr_scene, flags=pyrender.RenderFlags.SEG, seg_node_map=seg_map)
-        _ = (labels[..., 0].astype(np.uint32) | labels[..., 1].astype(np.uint32) << 8
-             | labels[..., 2].astype(np.uint32) << 16, np.rint(depth * 1000).astype(np.uint16), color)
+        _pyrender_frame(pyrender, renderer, pr_scene, colour_node, seg_map)
     seconds = time.perf_counter() - started
     renderer.delete()
-    return {"total_s": seconds, "nodes": len(seg_map), "gl_renderer": gl_renderer}
+    return {"total_s": seconds, "nodes": len(seg_map) + 1, "gl_renderer": gl_renderer,
+            "lp_num_threads": os.environ["LP_NUM_THREADS"]}
+
+
+def _pyrender_colour_mesh(scene: Scene, pyrender: Any, trimesh: Any) -> Any:
+    """The whole scene as one pyrender mesh with its vertex colours (or flat face colours)."""
+    mesh = trimesh.Trimesh(scene.vertices, scene.faces, process=False)
+    if scene.vertex_colors is not None:
+        # Shared vertices with vertex colours (smooth): the cheapest input for a rasterizer.
+        mesh.visual.vertex_colors = np.c_[scene.vertex_colors, np.full(len(scene.vertices), 255, np.uint8)]
+        return pyrender.Mesh.from_trimesh(mesh, smooth=True)
+    mesh.visual.face_colors = np.c_[scene.face_colors(), np.full(len(scene.faces), 255, np.uint8)]
+    return pyrender.Mesh.from_trimesh(mesh, smooth=False)
+
+
+def _pyrender_frame(pyrender: Any, renderer: Any, pr_scene: Any, colour_node: Any, seg_map: dict) -> None:
+    """One frame's buffers: the lit colour + depth pass (merged mesh only), then the label pass."""
+    for node in seg_map:
+        node.mesh.is_visible = False
+    colour_node.mesh.is_visible = True
+    color, depth = renderer.render(pr_scene)
+    for node in seg_map:
+        node.mesh.is_visible = True
+    colour_node.mesh.is_visible = False  # the SEG pass skips nodes without a colour anyway
+    labels, _ = renderer.render(pr_scene, flags=pyrender.RenderFlags.SEG, seg_node_map=seg_map)
+    _ = (labels[..., 0].astype(np.uint32) | labels[..., 1].astype(np.uint32) << 8
+         | labels[..., 2].astype(np.uint32) << 16, np.rint(depth * 1000).astype(np.uint16), color)
 
 
 # ---------------------------------------------------------------------------------------- main

@@ -58,14 +58,31 @@ def frame_segments(panoptic: np.ndarray, labels: SegmentLabels, dense: np.ndarra
     count = len(labels.dense_ids)
     areas = np.bincount(dense.ravel(), minlength=count)
     visible = np.flatnonzero(areas[1:]) + 1
-    # Occupancy of (row, label) and (column, label) pairs by two bincounts over offset labels.
-    rows = np.bincount((dense + (np.arange(height, dtype=np.int32) * count)[:, None]).ravel(),
-                       minlength=height * count).reshape(height, count)[:, visible] > 0
-    columns = np.bincount((dense + (np.arange(width, dtype=np.int32) * count)[None, :]).ravel(),
-                          minlength=width * count).reshape(width, count)[:, visible] > 0
+    rows = _line_occupancy(dense, count, along_rows=True)[:, visible]
+    columns = _line_occupancy(dense, count, along_rows=False)[:, visible]
     boxes = np.stack([
         columns.argmax(axis=0), rows.argmax(axis=0),
         width - columns[::-1].argmax(axis=0), height - rows[::-1].argmax(axis=0),
     ], axis=1).astype(np.int32)
     return FrameSegments(labels.dense_ids[visible], labels.dense_categories[visible], areas[visible].astype(np.int64),
                          boxes, int(areas[0]))
+
+
+def _line_occupancy(dense: np.ndarray, count: int, along_rows: bool) -> np.ndarray:
+    """(lines, count) bool: whether dense label k occurs in image line j (rows if `along_rows`, else columns).
+
+    A label occurs in a line exactly when one of its runs along that line starts there, so only run
+    starts are counted (a few percent of the pixels); counting the (line, label) pair of every pixel
+    measured 2x slower.
+    """
+    height, width = dense.shape
+    starts = np.ones((height, width), bool)
+    if along_rows:
+        np.not_equal(dense[:, 1:], dense[:, :-1], out=starts[:, 1:])
+    else:
+        np.not_equal(dense[1:], dense[:-1], out=starts[1:])
+    index = np.flatnonzero(starts)
+    lines = height if along_rows else width
+    line = index // width if along_rows else index % width
+    pairs = np.bincount(line * count + dense.ravel()[index], minlength=lines * count)
+    return pairs.reshape(lines, count) > 0

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 
 from pipeline.config import Illumination, Job
@@ -79,56 +80,56 @@ def job_exposure(job: Job) -> float:
 
 
 class SurfaceColors:
-    """Looks up the sRGB albedo (uint8) of ray hits on one scene.
+    """Looks up the sRGB albedo (uint8) of ray hits on one scene, as channel planes (3, H, W).
 
     Vertex colours are interpolated barycentrically (in sRGB, like a rasterizer); textures are sampled
     at the nearest texel with wrap-around (u right, v up). Faces with neither get DEFAULT_GREY.
     Per-face tables carry one trailing entry (black) for rays that hit nothing (RayHits.face == F).
+
+    Why planes: the per-pixel arithmetic then runs over long contiguous rows; on interleaved (N, 3) arrays
+    numpy broadcasts a per-pixel weight over a 3-long inner axis, which measured 4x slower.
     """
 
     def __init__(self, scene: Scene):
         self.scene = scene
-        self._base: np.ndarray | None = None
-        self._flat: np.ndarray | None = None
-        self._scratch: tuple[np.ndarray, np.ndarray] | None = None
+        self._corners: np.ndarray | None = None
+        self._flat = False
         if scene.vertex_colors is not None:
-            corners = scene.vertex_colors[scene.faces].astype(np.float32)  # (F, 3 corners, 3 channels)
-            if np.all(corners == corners[:, :1]):
-                # Flat-coloured faces (most procedural meshes): one uint8 gather per frame, no arithmetic.
-                self._flat = _with_miss_row(corners[:, 0].astype(np.uint8))
-            else:
-                # colour = c0 + u (c1 - c0) + v (c2 - c0): three (F, 3) tables, three gathers per frame.
-                self._base = _with_miss_row(corners[:, 0] + 0.5)  # + 0.5: truncation below rounds
-                self._du = _with_miss_row(corners[:, 1] - corners[:, 0])
-                self._dv = _with_miss_row(corners[:, 2] - corners[:, 0])
+            corners = scene.vertex_colors[scene.faces]  # (F, 3 corners, 3 channels) uint8
+            # Flat-coloured faces (every corner alike): one gather per frame, no arithmetic.
+            self._flat = bool(np.all(corners == corners[:, :1]))
+            self._corners = _face_records(corners)
 
     def albedo(self, hits: RayHits) -> np.ndarray:
         """(H, W, 3) uint8 sRGB albedo at each hit; 0 where nothing was hit."""
-        face = hits.face.ravel()
-        shape = (*hits.depth.shape, 3)
-        if self._flat is not None:
-            return self._flat[face].reshape(shape)
-        if self._base is not None:
-            return self._interpolated(face, hits.barycentric.reshape(-1, 2)).reshape(shape)
-        out = np.zeros(shape, np.uint8)
+        return interleave(self.planes(hits))
+
+    def planes(self, hits: RayHits) -> np.ndarray:
+        """(3, H, W) uint8 sRGB albedo planes (R, G, B) at each hit; 0 where nothing was hit."""
+        shape = (3, *hits.depth.shape)
+        if self._corners is not None:
+            records = _transposed(np.take(self._corners, hits.face.ravel()))  # (16, H*W) uint8: corner-major
+            if self._flat:
+                return records[0:3].reshape(shape)
+            return self._interpolated(records, hits.barycentric.reshape(-1, 2)).reshape(shape)
+        out = np.zeros((*hits.depth.shape, 3), np.uint8)
         if self.scene.face_uvs is not None and self.scene.face_material is not None and self.scene.textures:
             out[hits.hit] = self._texture_albedo(hits.face[hits.hit], hits.barycentric[hits.hit])
         else:
             out[hits.hit] = DEFAULT_GREY
-        return out
+        return np.ascontiguousarray(np.moveaxis(out, -1, 0))
 
-    def _interpolated(self, face: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
-        # Gathers into reused scratch buffers and in-place arithmetic: half the time of the plain
-        # expression, which allocates five frame-sized temporaries.
-        if self._scratch is None or len(self._scratch[0]) != len(face):
-            self._scratch = (np.empty((len(face), 3), np.float32), np.empty((len(face), 3), np.float32))
-        colour, term = self._scratch
-        np.take(self._base, face, axis=0, out=colour)
-        np.take(self._du, face, axis=0, out=term)
-        term *= barycentric[:, :1]
+    @staticmethod
+    def _interpolated(records: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
+        # colour = c0 + 0.5 + u (c1 - c0) + v (c2 - c0) in float32, truncated (the + 0.5 rounds).
+        c0, c1, c2 = records[0:3], records[3:6], records[6:9]
+        u, v = barycentric[:, 0], barycentric[:, 1]
+        colour = np.add(c0, np.float32(0.5), dtype=np.float32)
+        term = np.subtract(c1, c0, dtype=np.float32)
+        term *= u
         colour += term
-        np.take(self._dv, face, axis=0, out=term)
-        term *= barycentric[:, 1:]
+        np.subtract(c2, c0, out=term, dtype=np.float32)
+        term *= v
         colour += term
         np.clip(colour, 0.0, 255.0, out=colour)
         return colour.astype(np.uint8)
@@ -151,9 +152,23 @@ class SurfaceColors:
         return colors
 
 
-def _with_miss_row(table: np.ndarray) -> np.ndarray:
-    """`table` with one zero row appended: the entry of RayHits.face == F (no hit)."""
-    return np.concatenate([table, np.zeros((1, *table.shape[1:]), table.dtype)])
+def _face_records(corners: np.ndarray) -> np.ndarray:
+    """(F + 1,) 16-byte records of the (F, 3, 3) uint8 corner colours (9 bytes, zero padded), the last
+    one zero (the miss entry). One 16-byte gather per pixel is numpy's fast path and touches one cache
+    line per face, where three separate (F, 3) tables measured 3x slower."""
+    records = np.zeros((len(corners) + 1, 16), np.uint8)
+    records[:-1, :9] = corners.reshape(len(corners), 9)
+    return records.view("V16").ravel()
+
+
+def _transposed(records: np.ndarray) -> np.ndarray:
+    """(16, N) uint8 byte planes of N gathered 16-byte records (cv2's SIMD transpose: 1 ms per 640x480)."""
+    return cv2.transpose(records.view(np.uint8).reshape(-1, 16))
+
+
+def interleave(planes: np.ndarray) -> np.ndarray:
+    """(3, H, W) uint8 channel planes -> (H, W, 3) interleaved image."""
+    return cv2.merge([planes[0], planes[1], planes[2]])
 
 
 class Shader:
@@ -166,33 +181,41 @@ class Shader:
         self.ray_lengths = ray_lengths.astype(np.float32)
         # The light sits at the camera looking along the optical axis: theta is the ray's angle off axis.
         self.cone = cone_falloff(1.0 / self.ray_lengths, illumination) if illumination.kind == "spot" else None
-        if self.cone is not None:
-            # Everything per pixel that does not depend on the scene: I s(theta) exposure / (pi |ray|).
-            self._spot_scale = (radiant_intensity(illumination) * exposure / math.pi) * self.cone / self.ray_lengths
-        self._decode = srgb_to_linear(np.arange(256) / 255.0)
         self._encode_steps = 4096
+        if self.cone is not None:
+            # Everything per pixel that does not depend on the scene: I s(theta) exposure steps / (pi |ray|^3).
+            scale = (radiant_intensity(illumination) * exposure / math.pi) * self.cone / self.ray_lengths
+            self._spot_scale_steps = (scale / (self.ray_lengths * self.ray_lengths)).astype(np.float32)
+            self._spot_scale_steps *= np.float32(self._encode_steps)
+        self._decode = srgb_to_linear(np.arange(256) / 255.0)
         self._encode = np.rint(255.0 * linear_to_srgb(np.arange(self._encode_steps + 1) / self._encode_steps))
         self._encode = self._encode.astype(np.uint8)
 
     def shade(self, albedo: np.ndarray, hits: RayHits) -> np.ndarray:
-        """(H, W, 3) uint8 frame. Ambient returns the albedo; spot applies the model of schemas/render.md."""
+        """(H, W, 3) uint8 frame from (3, H, W) albedo planes. Ambient is the albedo; spot applies the
+        model of schemas/render.md."""
         if self.illumination.kind == "ambient":
-            return albedo
+            return interleave(albedo)
         return self._spot(albedo, hits)
 
     def _spot(self, albedo: np.ndarray, hits: RayHits) -> np.ndarray:
-        # Whole-frame arithmetic (no masks): a miss has depth inf, so its irradiance is exactly 0.
-        distance = hits.depth * self.ray_lengths  # Euclidean distance from the camera (= the light) to the hit
+        # Whole-frame arithmetic (no masks): a miss or a clipped hit has depth inf, so its irradiance is
+        # exactly 0 (open3d's normal of a miss is 0, never NaN).
         normal, direction = hits.normal, hits.direction
         # cos(incidence) = |n . ray| / |ray|: meshes do not always wind consistently, so either side is lit.
         dot = normal[..., 0] * direction[..., 0]
         dot += normal[..., 1] * direction[..., 1]
         dot += normal[..., 2] * direction[..., 2]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            # Radiance of a Lambertian surface is rho E / pi; exposure maps it to [0, 1] linear.
-            scale = np.abs(dot) * self._spot_scale / (distance * distance)
-        scale[~hits.hit] = 0.0
-        linear = self._decode[albedo]
-        linear *= scale[..., None]
-        np.minimum(linear, 1.0, out=linear)
-        return self._encode[(linear * self._encode_steps + 0.5).astype(np.int32)]
+        np.abs(dot, out=dot)
+        # Radiance rho E / pi, times exposure and the encoder's steps: |n . ray| I s exposure steps /
+        # (pi |ray| d^2) with d = z |ray| (the light is at the eye). The factor of steps is a power of two,
+        # so folding it in here rounds exactly like scaling the clipped linear value afterwards.
+        dot *= self._spot_scale_steps
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dot /= hits.depth * hits.depth
+        linear = cv2.LUT(albedo.reshape(3, -1), self._decode)  # srgb_to_linear per uint8 value
+        linear *= dot.reshape(1, -1)
+        np.clip(linear, 0.0, float(self._encode_steps), out=linear)  # clip: 3x faster than np.minimum here
+        linear += 0.5
+        encoded = np.take(self._encode, linear.astype(np.int32))
+        return interleave(encoded.reshape(albedo.shape))

@@ -73,6 +73,12 @@ def sensor_model(name: str) -> StructuredLightModel | None:
 def depth_to_millimetres(depth_m: np.ndarray, near: float, far: float) -> np.ndarray:
     """uint16 millimetres, rounded; 0 where there is no return, nearer than `near`, beyond `far`,
     or at/above 65.535 m (uint16 cannot hold it; saturating would fake a surface)."""
-    millimetres = np.rint(np.where(np.isfinite(depth_m), depth_m, 0.0) * 1000.0)
-    keep = (depth_m >= near) & (depth_m <= far) & (millimetres > 0) & (millimetres <= UINT16_MAX_MM)
-    return np.where(keep, millimetres, 0).astype(np.uint16)
+    depth_m = np.asarray(depth_m)
+    millimetres = np.rint(depth_m * 1000.0)  # inf and NaN stay non-finite and fail every test below
+    keep = depth_m >= near
+    keep &= depth_m <= far
+    keep &= millimetres > 0
+    keep &= millimetres <= UINT16_MAX_MM
+    out = np.zeros(depth_m.shape, np.uint16)
+    np.copyto(out, millimetres, casting="unsafe", where=keep)
+    return out

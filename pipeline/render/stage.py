@@ -16,12 +16,13 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from pipeline.config import Embodiment, Job
+from pipeline.io.segments import frame_segments
 from pipeline.io.tables import spec, to_table
 from pipeline.io.zarr_video import VideoWriter
 from pipeline.plan.poses import pose_matrices
 from pipeline.render.lighting import SurfaceColors, job_exposure
 from pipeline.render.raycaster import SceneRaycaster
-from pipeline.render.renderer import RenderedFrame, SceneLabels, VideoRenderer, frame_segments
+from pipeline.render.renderer import RenderedFrame, SceneLabels, VideoRenderer, limit_worker_threads
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 from pipeline.scenes.scene import Scene
 
@@ -31,9 +32,11 @@ if TYPE_CHECKING:
     from pipeline.runtime.run_folder import RunFolder
 
 # Bump when the rendered pixels change for the same inputs (part of every unit's config hash).
-RENDER_ALGORITHM_VERSION = 1
-# zstd level of the Zarr arrays. Measured on the detail-1.0 house at 640x480 (spot light, 32 frames):
-# level 1: 138 kB/frame, 14 ms; 3: 131 kB, 17 ms; 6: 111 kB, 33 ms; 9: 111 kB, 48 ms per frame written.
+# 2: rays and spot scale computed in another float32 order (a few pixels per frame differ by 1-2 levels).
+RENDER_ALGORITHM_VERSION = 2
+# zstd level of the Zarr arrays. Measured on the detail-1.0 house at 640x480, zstd alone per frame
+# (rgb + depth + panoptic; spot / ambient light): level 1: 154 / 79 kB, 2.5 / 1.4 ms (over the 150 kB
+# budget); 3: 146 / 75 kB, 3.1 / 1.7 ms; 5: 128 / 67 kB, 7.4 / 5.6 ms. Zarr's own work adds ~2-3 ms.
 ZSTD_LEVEL = 3
 
 
@@ -133,6 +136,7 @@ class _WorkerCache:
         if self.parts is None or self.parts[0] is not scene:
             self.parts = None
             self.parts = (scene, SceneRaycaster(scene), SurfaceColors(scene), SceneLabels(scene))
+            limit_worker_threads(self.parts[1].threads)
         _, raycaster, colors, labels = self.parts
         return VideoRenderer(scene, embodiment, exposure, raycaster=raycaster, colors=colors, labels=labels)
 

@@ -56,3 +56,16 @@ def test_depth_beyond_uint16_range_is_zero_not_saturated() -> None:
     frame = VideoRenderer(plane_scene(70.0, half_size=500.0), embodiment(), exposure=1.0).render(np.eye(4))
     assert np.all(frame.depth == 0)
     assert np.all(frame.panoptic == 5)  # still labelled: the surface is seen, only its depth cannot be stored
+
+
+def test_rays_are_the_camera_directions_rotated_into_the_world() -> None:
+    camera = Camera(8, 6, 5.0, 4.0, 3.7, 3.1)
+    angle = np.radians(30.0)
+    pose = np.eye(4)
+    pose[:3, :3] = [[np.cos(angle), 0.0, np.sin(angle)], [0.0, 1.0, 0.0], [-np.sin(angle), 0.0, np.cos(angle)]]
+    pose[:3, 3] = [1.0, -2.0, 0.5]
+    rays = SceneRaycaster(plane_scene(1.0)).rays(camera, pose)
+    expected = camera.directions().reshape(-1, 3) @ pose[:3, :3].T
+    assert rays.shape == (48, 6) and rays.dtype == np.float32
+    assert np.all(rays[:, :3] == np.float32([1.0, -2.0, 0.5]))
+    assert np.abs(rays[:, 3:] - expected).max() < 1e-6

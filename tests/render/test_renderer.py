@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.render.renderer import VideoRenderer, frame_segments
+from pipeline.io.segments import frame_segments
+from pipeline.render.renderer import VideoRenderer
 from tests.render.tiny_scenes import CHAIR, TABLE, embodiment, look_at, room_scene
 
 
@@ -87,3 +88,24 @@ def test_frame_segments_from_dense_labels_equal_those_from_ids() -> None:
         frame.panoptic, renderer.labels, frame.dense)
     assert from_ids.object_ids.tolist() == from_dense.object_ids.tolist()
     assert np.array_equal(from_ids.boxes, from_dense.boxes) and np.array_equal(from_ids.areas, from_dense.areas)
+
+
+def test_row_bands_render_exactly_like_the_whole_frame() -> None:
+    # Frames are shaded in row bands (MIN_BANDS, or one per cast thread, in parallel): the split must not
+    # change a single value against shading the whole frame at once.
+    from pipeline.config import Illumination
+    from pipeline.render.raycaster import SceneRaycaster
+    from pipeline.render.sensors import depth_to_millimetres
+
+    scene, pose = room_scene(), _poses(2)[1]
+    for light in (Illumination(), Illumination(kind="spot", power=20.0)):
+        body = embodiment(width=96, height=71, light=light)  # 71 rows: bands of unequal height
+        for threads in (1, 7):
+            renderer = VideoRenderer(scene, body, exposure=2.0, raycaster=SceneRaycaster(scene, threads=threads))
+            hits = renderer.trace(pose)
+            frame = renderer.buffers(hits)
+            assert np.array_equal(frame.rgb, renderer.shader.shade(renderer.colors.planes(hits), hits))
+            assert np.array_equal(frame.depth, depth_to_millimetres(hits.depth, body.sensor.near, body.sensor.far))
+            assert np.array_equal(frame.panoptic, renderer.labels.object_ids[hits.face])
+            assert np.array_equal(frame.dense, renderer.labels.dense_of_face[hits.face])
+            assert frame.rgb.any() and frame.panoptic.any()
