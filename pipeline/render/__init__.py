@@ -1,1 +1,1 @@
-"""The render stage: CPU ray casting (Embree via open3d), lighting, depth sensor models, Zarr + Parquet outputs."""
+"""The render stage: CPU ray casting (Embree 4 packets), lighting, depth sensor models, Zarr + Parquet outputs."""

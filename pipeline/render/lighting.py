@@ -200,7 +200,7 @@ class Shader:
 
     def _spot(self, albedo: np.ndarray, hits: RayHits) -> np.ndarray:
         # Whole-frame arithmetic (no masks): a miss or a clipped hit has depth inf, so its irradiance is
-        # exactly 0 (open3d's normal of a miss is 0, never NaN).
+        # exactly 0 (the caster's normal of a miss is 0, never NaN).
         normal, direction = hits.normal, hits.direction
         # cos(incidence) = |n . ray| / |ray|: meshes do not always wind consistently, so either side is lit.
         dot = normal[..., 0] * direction[..., 0]

@@ -6,8 +6,6 @@ one ray cast plus vectorised numpy. The per-frame `segments` rows come from `pip
 
 from __future__ import annotations
 
-import functools
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -15,7 +13,7 @@ import numpy as np
 
 from pipeline.config import Embodiment
 from pipeline.render.lighting import Shader, SurfaceColors
-from pipeline.render.raycaster import Camera, RayHits, SceneRaycaster
+from pipeline.render.raycaster import Camera, RayHits, SceneRaycaster, row_bands, thread_pool
 from pipeline.render.sensors import StructuredLightModel, depth_to_millimetres, sensor_model
 from pipeline.scenes.scene import Scene
 
@@ -82,7 +80,7 @@ class VideoRenderer:
         # frame: 12 % faster than whole frames), and with several cast threads the bands run in parallel
         # (numpy releases the GIL: 2 threads take ~60 % of the time). A 1-CPU worker runs them inline.
         self._bands = [(rows, Shader(embodiment.illumination, exposure, self.ray_lengths[rows]))
-                       for rows in _row_bands(self.camera.height, max(MIN_BANDS, self.raycaster.threads))]
+                       for rows in row_bands(self.camera.height, max(MIN_BANDS, self.raycaster.threads))]
 
     def trace(self, camera_to_world: np.ndarray) -> RayHits:
         """Ray cast one pose; hits outside the clip range [near, far] become misses (void, black, 0 mm)."""
@@ -109,7 +107,7 @@ class VideoRenderer:
         if self.raycaster.threads == 1:
             parts = [self._band_buffers(hits, band) for band in bands]
         else:
-            parts = list(_band_pool(self.raycaster.threads).map(lambda band: self._band_buffers(hits, band), bands))
+            parts = list(thread_pool(self.raycaster.threads).map(lambda band: self._band_buffers(hits, band), bands))
         rgb, clean, panoptic, dense = (np.concatenate(buffers) for buffers in zip(*parts))
         if self.sensor is None:
             return RenderedFrame(rgb=rgb, depth=clean, panoptic=panoptic, dense=dense)
@@ -138,15 +136,3 @@ def limit_worker_threads(threads: int) -> None:
     Embree casts. A per-process setting: call it once where a worker starts rendering, not in libraries.
     """
     cv2.setNumThreads(max(1, threads))
-
-
-def _row_bands(height: int, count: int) -> list[slice]:
-    """`count` contiguous row ranges covering `height` rows (at least one row each)."""
-    edges = np.linspace(0, height, max(1, min(count, height)) + 1).round().astype(int)
-    return [slice(int(start), int(stop)) for start, stop in zip(edges[:-1], edges[1:])]
-
-
-@functools.cache
-def _band_pool(workers: int) -> ThreadPoolExecutor:
-    """One thread pool per process for the row bands (threads live as long as the process, like BLAS's)."""
-    return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="render-band")

@@ -64,8 +64,17 @@ def test_rays_are_the_camera_directions_rotated_into_the_world() -> None:
     pose = np.eye(4)
     pose[:3, :3] = [[np.cos(angle), 0.0, np.sin(angle)], [0.0, 1.0, 0.0], [-np.sin(angle), 0.0, np.cos(angle)]]
     pose[:3, 3] = [1.0, -2.0, 0.5]
-    rays = SceneRaycaster(plane_scene(1.0)).rays(camera, pose)
-    expected = camera.directions().reshape(-1, 3) @ pose[:3, :3].T
-    assert rays.shape == (48, 6) and rays.dtype == np.float32
-    assert np.all(rays[:, :3] == np.float32([1.0, -2.0, 0.5]))
-    assert np.abs(rays[:, 3:] - expected).max() < 1e-6
+    hits = SceneRaycaster(plane_scene(1.0)).cast(camera, pose)
+    expected = camera.directions() @ pose[:3, :3].T
+    assert hits.direction.shape == (6, 8, 3) and hits.direction.dtype == np.float32
+    assert np.abs(hits.direction - expected).max() < 1e-6
+
+
+def test_threads_trace_the_same_hits_as_one_thread() -> None:
+    scene = plane_scene(2.0, half_size=0.8)  # smaller than the view: the border rays miss
+    scene.vertices[:, 2] += 0.3 * scene.vertices[:, 1]  # tilted: depth varies by row, across the bands
+    camera = Camera(37, 29, 20.0, 20.0, 18.1, 14.3)  # odd sizes: partial packets at the right and bottom
+    one, three = (SceneRaycaster(scene, threads=threads).cast(camera, np.eye(4)) for threads in (1, 3))
+    for name in ("depth", "face", "barycentric", "normal", "direction", "hit"):
+        assert np.array_equal(getattr(one, name), getattr(three, name)), name
+    assert one.hit.any() and not one.hit.all()
