@@ -8,7 +8,7 @@ of an MVPd-layout split, inside an evaluation run folder of its own. A unit writ
 
 from __future__ import annotations
 
-import os
+import hashlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -48,12 +48,16 @@ def unit_id(spec: VideoSpec) -> str:
     return f"{spec.embodiment}.{spec.video_name}" if spec.embodiment else spec.video_name
 
 
-def _fingerprint(folder: Path) -> int:
-    """Modification time of a video's prediction folder: a rewritten folder makes its unit stale."""
-    try:
-        return os.stat(folder).st_mtime_ns
-    except FileNotFoundError:
-        return 0
+def _fingerprint(folder: Path) -> str:
+    """Name, size and modification time of every file of a video's predictions ("" when absent): a file
+    rewritten in place makes its unit stale, which the folder's own mtime would not show."""
+    if not folder.exists():
+        return ""
+    digest = hashlib.sha1()
+    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
+        stat = path.stat()
+        digest.update(f"{path.relative_to(folder)}\0{stat.st_size}\0{stat.st_mtime_ns}\n".encode())
+    return digest.hexdigest()
 
 
 class VsqEvaluator(Stage):
@@ -76,12 +80,12 @@ class VsqEvaluator(Stage):
         predictions = Path(self.inputs.predictions)
         units = []
         for spec in self.videos(run):
-            stamp = max(_fingerprint(predictions / RLE_FOLDER / spec.video_name),
-                        _fingerprint(predictions / f"{spec.video_name}.zarr"))
-            if stamp == 0:  # checked here, in the driver, so the error comes at once and names the folder
+            stamp = (_fingerprint(predictions / RLE_FOLDER / spec.video_name)
+                     + _fingerprint(predictions / f"{spec.video_name}.zarr"))
+            if not stamp:  # checked here, in the driver, so the error comes at once and names the folder
                 raise MissingPredictionError(f"{predictions / RLE_FOLDER / spec.video_name}: no predictions for video "
                                              f"{spec.key}; predict it, or evaluate a split without it")
-            units.append(Unit(unit_id(spec), {"video": spec.to_params(), "predictions_mtime_ns": stamp}))
+            units.append(Unit(unit_id(spec), {"video": spec.to_params(), "predictions_fingerprint": stamp}))
         return sorted(units, key=lambda u: u.id)
 
     def settings(self) -> dict[str, Any]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ from pipeline.evaluate.report import result_from_table
 from pipeline.evaluate.stage import EvaluationInputs, VsqEvaluator
 from pipeline.io.tables import to_table, write_part
 from pipeline.io.zarr_video import VideoWriter
-from pipeline.runtime.executor import run_unit_locally
+from pipeline.runtime.executor import plan_stage, run_unit_locally
 from pipeline.runtime.run_folder import Marker, RunFolder
 
 CASE = Path(__file__).resolve().parents[1] / "data" / "vsq_small"
@@ -71,6 +72,21 @@ def test_run_videos_are_evaluated_with_every_object_non_zero_shot(tmp_path) -> N
     assert (video["zero-shot"][15].tp, video["zero-shot"][15].fn) == (0, 0)
     assert result.summary["non-zero-shot"]["1"] == pytest.approx(1 / (1 + 0.5))
     assert result.summary["zero-shot"]["VSQ"] is None
+
+
+def test_a_prediction_file_rewritten_in_place_makes_its_video_stale(tmp_path) -> None:
+    run = tiny_run(tmp_path / "run")
+    write_predictions(tmp_path / "pred", np.zeros((17, 8, 10), dtype=bool))
+    stage = VsqEvaluator(run.job(), EvaluationInputs(str(tmp_path / "pred")))
+    run_unit_locally(stage, run, stage.units(run)[0])
+    assert plan_stage(stage, run).to_run == []
+    folder = tmp_path / "pred" / "panomasksRLE" / NAME
+    before = os.stat(folder)
+    rewritten = folder / "0000000003.json"
+    rewritten.write_text(rewritten.read_text())  # same bytes, a new modification time
+    os.utime(rewritten, ns=(before.st_atime_ns, before.st_mtime_ns + 1))
+    assert os.stat(folder).st_mtime_ns == before.st_mtime_ns  # the folder itself looks untouched
+    assert [unit.id for unit in plan_stage(stage, run).to_run] == [f"cam.{NAME}"]
 
 
 def test_run_without_rendered_videos_is_a_clear_error(tmp_path) -> None:
