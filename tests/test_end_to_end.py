@@ -73,6 +73,11 @@ def test_the_generated_house_goes_through_every_stage(run):
     assert [v["height_m"] for v in videos] == [0.1, 1.0]  # one trajectory, both heights
     assert videos[0]["frames"] == videos[1]["frames"] >= 10
     assert len(list((run / "videos" / "tiny").glob("*.zarr"))) == 2
+    # `frames` shows the poses of the plan together with the per-frame statistics of the render.
+    sql = "select count(*), count(void_fraction), min(visible_objects) from frames"
+    result = invoke("query", run, sql, "--format", "csv")
+    total, with_stats, fewest_objects = (int(v) for v in result.output.splitlines()[1].split(","))
+    assert total == with_stats == sum(v["frames"] for v in videos) and fewest_objects >= 1
 
 
 def test_rerun_runs_only_what_is_missing(run):

@@ -1,4 +1,9 @@
-"""SQL over a run's Parquet datasets with DuckDB: every dataset is a view of the same name."""
+"""SQL over a run's Parquet datasets with DuckDB: every dataset is a view of the same name.
+
+One view joins two datasets: `frames` (poses, written by `plan`) also shows the per-frame columns of
+`frame_stats` (written by `render`; NULL until a video is rendered). They stay two datasets on disk
+because each stage commits only its own outputs, so re-rendering never rewrites the plan's files.
+"""
 
 from __future__ import annotations
 
@@ -13,13 +18,26 @@ class QueryError(ValueError):
     """SQL that DuckDB rejected; the message is DuckDB's first line."""
 
 
+FRAME_KEY = ("embodiment", "video_name", "frame")
+
+
 def connect(run: RunFolder) -> duckdb.DuckDBPyConnection:
-    """An in-memory DuckDB connection with one view per Parquet dataset of the run."""
+    """An in-memory DuckDB connection with one view per Parquet dataset of the run (`frames` joined)."""
     connection = duckdb.connect(":memory:")
-    for dataset in run.datasets():
-        pattern = str(run.root / dataset / "part-*.parquet").replace("'", "''")
-        connection.execute(f'CREATE VIEW "{dataset}" AS SELECT * FROM read_parquet(\'{pattern}\', union_by_name = true)')
+    datasets = run.datasets()
+    for dataset in datasets:
+        connection.execute(f'CREATE VIEW "{dataset}" AS {_scan(run, dataset)}')
+    if {"frames", "frame_stats"} <= set(datasets):
+        keys = ", ".join(FRAME_KEY)
+        connection.execute(f"CREATE OR REPLACE VIEW frames AS SELECT f.*, s.* EXCLUDE ({keys}) "
+                           f"FROM ({_scan(run, 'frames')}) f LEFT JOIN ({_scan(run, 'frame_stats')}) s USING ({keys})")
     return connection
+
+
+def _scan(run: RunFolder, dataset: str) -> str:
+    """SELECT over every part file of a dataset (parts of older code versions may lack newer columns)."""
+    pattern = str(run.root / dataset / "part-*.parquet").replace("'", "''")
+    return f"SELECT * FROM read_parquet('{pattern}', union_by_name = true)"
 
 
 def query(run: RunFolder, sql: str) -> duckdb.DuckDBPyRelation:
