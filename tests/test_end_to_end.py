@@ -80,6 +80,34 @@ def test_the_generated_house_goes_through_every_stage(run):
     assert total == with_stats == sum(v["frames"] for v in videos) and fewest_objects >= 1
 
 
+def test_stats_count_what_the_tables_hold_and_draw_them(run, tmp_path):
+    from pipeline.io.dataset_stats import dataset_stats
+    from pipeline.runtime.run_folder import RunFolder
+
+    folder = RunFolder.open(run)
+    found = dataset_stats(folder)
+    segments, videos = folder.read("segments").to_pylist(), folder.read("videos").to_pylist()
+    (row,) = found.per_embodiment
+    assert (row["embodiment"], row["scenes"], row["videos"]) == ("tiny", 1, 2)
+    assert row["frames"] == sum(v["frames"] for v in videos) and row["masks"] == len(segments)
+    assert found.instances == len({s["object_id"] for s in segments})  # one scene: ids are instances
+    assert sum(c["masks"] for c in found.per_category) == len(segments)
+    picture = tmp_path / "stats.png"
+    result = invoke("stats", run, "--out", picture)
+    assert result.exit_code == 0, result.output
+    assert "object instances" in result.output and picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_stats_of_a_run_without_videos_is_a_one_line_error(tmp_path):
+    from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources
+    from pipeline.runtime.run_folder import RunFolder
+
+    job = Job(name="empty", scenes=SceneSources(procedural=ProceduralSource(count=1)), embodiments=[Embodiment(name="cam")])
+    RunFolder.create(tmp_path / "empty", job)
+    result = invoke("stats", tmp_path / "empty")
+    assert result.exit_code == 2 and "render" in result.output and len(result.output.strip().splitlines()) == 1
+
+
 def test_rerun_runs_only_what_is_missing(run):
     result = invoke("rerun", run, "--stage", "render")
     assert result.exit_code == 0 and "0 done, 0 failed, 2 up to date" in result.output

@@ -1,4 +1,4 @@
-"""Commands that run and inspect jobs: demo, submit, rerun, status, query, logs, schemas."""
+"""Commands that run and inspect jobs: demo, submit, rerun, status, query, stats, logs, schemas."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from rich.table import Table
 
 from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, stage_progress
 from pipeline.config import ConfigError, json_schemas, load_job
+from pipeline.io.dataset_stats import StatsError, dataset_stats, write_stats_picture
 from pipeline.io.query import QueryError, query, write_result
 from pipeline.runtime.executor import StageOrderError
 from pipeline.runtime.lock import RunLockedError
@@ -22,7 +23,7 @@ from pipeline.stages import JOB_STAGES, STAGE_CLASSES
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DEMO_JOB = REPO_ROOT / "jobs" / "demo.yaml"
-USAGE_ERRORS = (ConfigError, RunFolderError, RunLockedError, StageOrderError, QueryError)
+USAGE_ERRORS = (ConfigError, RunFolderError, RunLockedError, StageOrderError, QueryError, StatsError)
 
 
 class OutputFormat(str, Enum):
@@ -39,6 +40,7 @@ def register(app: typer.Typer) -> None:
     app.command("rerun")(rerun_command)
     app.command()(status)
     app.command("query")(query_command)
+    app.command()(stats)
     app.command()(logs)
     app.command()(schemas)
 
@@ -152,6 +154,41 @@ def query_command(
         fail(str(error))
     if text is not None:
         typer.echo(text, nl=False)
+
+
+STATS_ROWS = {  # per-embodiment statistic -> (label, format)
+    "scenes": ("scenes", "{:,}"), "videos": ("videos", "{:,}"), "frames": ("frames", "{:,}"),
+    "masks": ("masks", "{:,}"), "frames_per_video": ("frames per video", "{:.1f}"),
+    "objects_per_video": ("objects per video", "{:.1f}"), "objects_per_frame": ("objects per frame", "{:.1f}"),
+    "void_fraction": ("void pixels", "{:.2%}"), "gigabytes": ("stored GB", "{:.3f}"),
+}
+
+
+def stats(
+    run_dir: Annotated[Path, typer.Argument(help="run folder (rendered or imported videos)")],
+    out: Annotated[Optional[Path], typer.Option(help="also draw the distributions into this PNG")] = None,
+    top: Annotated[int, typer.Option(min=1, help="categories listed (and drawn)")] = 15,
+) -> None:
+    """Dataset statistics: scenes, videos, frames, masks and objects per embodiment and per category."""
+    try:
+        folder = RunFolder.open(run_dir)
+        found = dataset_stats(folder)
+        picture = write_stats_picture(folder, found, out, top=max(top, 30)) if out else None
+    except USAGE_ERRORS as error:
+        fail(str(error))
+    except OSError as error:
+        fail(f"{out}: cannot write the picture ({error}); choose a writable path")
+    table = Table("", *(row["embodiment"] for row in found.per_embodiment), title=f"{found.instances:,} object instances")
+    for key, (label, fmt) in STATS_ROWS.items():
+        table.add_row(label, *("-" if row[key] is None else fmt.format(row[key]) for row in found.per_embodiment))
+    console.print(table)
+    categories = Table("category", "masks", "instances", title=f"top {min(top, len(found.per_category))} of "
+                       f"{len(found.per_category)} categories")
+    for row in found.per_category[:top]:
+        categories.add_row(str(row["name"]), f"{row['masks']:,}", f"{row['instances']:,}")
+    console.print(categories)
+    if picture:
+        console.print(f"picture: {picture}")
 
 
 def _cell(value: object) -> str:

@@ -318,6 +318,16 @@ def test_import_of_the_shared_example(sample_run: RunFolder) -> None:
     np.testing.assert_array_equal(video.panoptic[5], expected)
 
 
+def test_stats_describe_the_imported_example(sample_run: RunFolder) -> None:
+    from pipeline.io.dataset_stats import dataset_stats
+
+    found = dataset_stats(sample_run)
+    (row,) = found.per_embodiment  # imported videos all belong to the one `mvpd` embodiment
+    assert (row["embodiment"], row["scenes"], row["videos"], row["frames"]) == ("mvpd", 1, 3, 36 + 33 + 32)
+    assert row["masks"] == sample_run.read("segments").num_rows > 0
+    assert found.instances == len(set(sample_run.read("segments").column("object_id").to_pylist()))
+
+
 def test_reimport_is_idempotent(sample_run: RunFolder) -> None:
     before = {d: sample_run.read(d).num_rows for d in ("videos", "frames", "segments", "objects")}
     summary = import_release(SAMPLE, "test", sample_run.root)

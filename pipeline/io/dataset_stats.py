@@ -1,0 +1,138 @@
+"""Statistics of the dataset a run holds: the numbers the MVPd paper reports (scenes, videos, frames,
+masks, object instances), per embodiment and per category, and a picture of their distributions.
+
+Every number is one DuckDB aggregate over the run's Parquet datasets (the `segments` table has one row
+per mask: 162 M rows at MVPd scale), so nothing is loaded into Python row by row.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import duckdb
+import numpy as np
+
+from pipeline.io.query import connect
+from pipeline.runtime.run_folder import RunFolder
+from pipeline.scenes.categories import categories
+
+REQUIRED = ("videos", "frame_stats", "segments")
+
+PER_EMBODIMENT = """
+with per_video as (
+    select embodiment, video_name, count(*) as masks, count(distinct object_id) as objects
+    from segments group by all
+), per_frame as (
+    select embodiment, avg(visible_objects) as objects_per_frame, avg(void_fraction) as void_fraction
+    from frame_stats group by all
+)
+select v.embodiment, count(distinct v.scene_id) as scenes, count(*) as videos, sum(v.frames) as frames,
+       avg(v.frames) as frames_per_video, coalesce(sum(p.masks), 0) as masks,
+       avg(p.objects) as objects_per_video, any_value(f.objects_per_frame) as objects_per_frame,
+       any_value(f.void_fraction) as void_fraction, sum(v.bytes) / 1e9 as gigabytes
+from videos v
+left join per_video p using (embodiment, video_name)
+left join per_frame f using (embodiment)
+group by v.embodiment order by v.embodiment
+"""
+
+# Object instances are (scene, object id) pairs: the same id in two scenes is two objects.
+INSTANCES = """
+select count(distinct (v.scene_id, s.object_id)) from segments s join videos v using (embodiment, video_name)
+"""
+
+PER_CATEGORY = """
+select s.category, count(*) as masks, count(distinct (v.scene_id, s.object_id)) as instances
+from segments s join videos v using (embodiment, video_name)
+group by 1 order by masks desc, s.category
+"""
+
+
+class StatsError(ValueError):
+    """The run has nothing to describe yet."""
+
+
+@dataclass
+class DatasetStats:
+    """Per embodiment rows (column -> value), object instances over the run, per category rows."""
+
+    per_embodiment: list[dict[str, object]]
+    instances: int
+    per_category: list[dict[str, object]]
+
+
+def dataset_stats(run: RunFolder) -> DatasetStats:
+    """The statistics of every rendered (or imported) video of `run`."""
+    connection = _connection(run)
+    category_names = {index: category.name for index, category in categories().items()}
+    per_category = [{**row, "name": category_names.get(int(row["category"]), "?")}
+                    for row in _rows(connection, PER_CATEGORY)]
+    return DatasetStats(_rows(connection, PER_EMBODIMENT), int(connection.sql(INSTANCES).fetchall()[0][0]), per_category)
+
+
+def write_stats_picture(run: RunFolder, stats: DatasetStats, out: Path, top: int = 30) -> Path:
+    """A PNG of four panels: masks per category (the `top` most frequent), frames per video, visible
+    objects per frame and void fraction per frame (one line per embodiment)."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only, never a window
+    import matplotlib.pyplot as plt
+
+    connection = _connection(run)
+    figure, axes = plt.subplots(2, 2, figsize=(14, 9), constrained_layout=True)
+    shown = stats.per_category[:top]
+    colours = {index: tuple(c / 255 for c in category.rgb) for index, category in categories().items()}
+    axes[0, 0].bar([row["name"] for row in shown], [row["masks"] for row in shown],
+                   color=[colours.get(int(row["category"]), (0.5, 0.5, 0.5)) for row in shown], edgecolor="black")
+    axes[0, 0].set_yscale("log")
+    axes[0, 0].tick_params(axis="x", rotation=70)
+    axes[0, 0].set_title(f"masks per category (top {len(shown)} of {len(stats.per_category)})")
+    histograms = [
+        (axes[0, 1], "select embodiment, frames as value, count(*) from videos group by all", "frames per video"),
+        (axes[1, 0], "select embodiment, visible_objects, count(*) from frame_stats group by all", "objects visible per frame"),
+        (axes[1, 1], "select embodiment, round(void_fraction, 2), count(*) from frame_stats group by all",
+         "void fraction per frame"),
+    ]
+    for axis, sql, title in histograms:
+        series = _series(connection, sql)
+        low = min(min(values) for _, values, _ in series)
+        high = max(max(values) for _, values, _ in series)
+        bins = np.linspace(low, high if high > low else low + 1, 21)
+        for number, (embodiment, values, counts) in enumerate(series):
+            # Histograms of (value, count) pairs DuckDB already counted; dashes keep identical ones visible.
+            axis.hist(values, bins=bins, weights=counts, histtype="step", linewidth=2,
+                      linestyle=("-", "--", ":", "-.")[number % 4], label=embodiment)
+        axis.set_title(title)
+        axis.set_ylabel("count")
+        axis.legend()
+    figure.suptitle(f"{run.root.name}: {sum(r['videos'] for r in stats.per_embodiment)} videos, "
+                    f"{sum(r['frames'] for r in stats.per_embodiment)} frames, "
+                    f"{sum(r['masks'] for r in stats.per_embodiment)} masks, {stats.instances} object instances")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(f".{out.name}.partial")
+    figure.savefig(partial, dpi=90, format="png")
+    plt.close(figure)
+    partial.replace(out)  # never a half-written picture under the real name
+    return out
+
+
+def _connection(run: RunFolder) -> duckdb.DuckDBPyConnection:
+    missing = [name for name in REQUIRED if name not in run.datasets()]
+    if missing:
+        raise StatsError(f"{run.root}: no {', '.join(missing)} yet; render (mvpd rerun {run.root} --stage render) "
+                         "or import (mvpd import-mvpd) videos first")
+    return connect(run)
+
+
+def _rows(connection: duckdb.DuckDBPyConnection, sql: str) -> list[dict[str, object]]:
+    relation = connection.sql(sql)
+    return [dict(zip(relation.columns, row)) for row in relation.fetchall()]
+
+
+def _series(connection: duckdb.DuckDBPyConnection, sql: str) -> list[tuple[str, list, list]]:
+    """(embodiment, sorted values, counts) of a `select embodiment, value, count` query."""
+    points: dict[str, list[tuple]] = {}
+    for embodiment, value, count in connection.sql(sql).fetchall():
+        points.setdefault(embodiment, []).append((value, count))
+    return [(name, *map(list, zip(*sorted(pairs)))) for name, pairs in sorted(points.items())]
