@@ -23,7 +23,8 @@ def test_top_down_image_shows_walls_and_categories(small_house: Scene) -> None:
 def test_stats_count_rooms_and_categories(small_house: Scene) -> None:
     stats = scene_stats(small_house)
     assert stats["rooms"] >= 3 and stats["triangles"] == small_house.triangle_count
-    assert stats["objects_per_category"]["wall"] == stats["rooms"]
+    walls = [o for o in small_house.objects.values() if o.category == 1]  # each room's walls and baseboard
+    assert stats["objects_per_category"]["wall"] == len(walls) == 2 * stats["rooms"]
 
 
 def test_cli_generate_preview_stats(tmp_path: Path) -> None:

@@ -357,6 +357,9 @@ def wall_item(rng: np.random.Generator, kind: str) -> Piece:
         return Piece(28, ("wall sconce", "sconce", "wall lamp", "wall light"), [block(-0.06, 0, -0.05, 0.06, 0.2, 0.05, "metal", (230, 220, 190))])
     if kind == "switch":
         return Piece(39, ("light switch",), [block(-0.04, 0, -0.005, 0.04, 0.12, 0.005, "plastic", WHITE)])
+    if kind == "outlet":
+        return Piece(39, ("outlet", "electric outlet", "socket", "power outlet"),
+                     [block(-0.04, 0, -0.005, 0.04, 0.08, 0.005, "plastic", WHITE)])
     if kind == "clock":
         return Piece(39, ("clock",), [Cylinder((0, 0.15, -0.02), 0.15, 0.04, "plastic", _pick(rng, (WHITE, (30, 30, 30))), "z")])
     raise ValueError(f"unknown wall item {kind!r}")
@@ -402,3 +405,8 @@ def clutter(rng: np.random.Generator, max_height: float) -> Piece:
         parts = [block(-w / 2, k * 0.04, -d / 2, w / 2, (k + 1) * 0.04, d / 2, "paint",
                       tuple(int(c) for c in rng.integers(30, 240, 3))) for k in range(min(layers, 6))]  # type: ignore[arg-type]
     return Piece(39, (), parts)
+
+
+def floor_item(rng: np.random.Generator) -> Piece:
+    """Something left on the floor by a wall: a box, basket, bag, shoes or a toy."""
+    return Piece(39, ("box", "boxes", "basket", "bag", "shoes", "toy", "backpack"), clutter(rng, 0.45).parts)

@@ -1,4 +1,4 @@
-"""Generate a furnished house from a seed: layout -> structure -> furniture -> clutter -> mesh.
+"""Generate a furnished house from a seed: layout -> structure -> trim -> furniture -> clutter -> mesh.
 
 Deterministic: one numpy generator seeded from the house seed drives every choice, in a fixed
 order, and the tessellation is pure numpy; the same seed and options give the same arrays (and so
@@ -19,7 +19,7 @@ from pipeline.scenes.procedural.furniture import Piece
 from pipeline.scenes.procedural.geometry import (Box, Cylinder, Ellipsoid, MeshAccumulator, add_boxes, add_cylinders,
                                                  add_ellipsoids, box_triangle_count)
 from pipeline.scenes.procedural.placement import Placed, RoomFurnisher, placed_objects
-from pipeline.scenes.procedural.rooms import RECIPES, decorate
+from pipeline.scenes.procedural.rooms import RECIPES, decorate, trim
 from pipeline.scenes.procedural.vocabulary import choose_name, clutter_name
 from pipeline.scenes.scene import Scene, SceneError, SceneObject
 
@@ -106,6 +106,7 @@ def _furnish(seed: int, layout: lay.Layout, clutter_density: float, reserved: di
         furnisher = RoomFurnisher(room, layout.openings, layout.ceiling, room_rng)
         for piece in reserved.get(room.index, []):
             furnisher.reserve(piece)
+        trim(furnisher, room_rng)
         RECIPES[room.kind](furnisher, room_rng)
         decorate(furnisher, room_rng, layout.ceiling, clutter_density)
         placed += placed_objects(furnisher)

@@ -188,6 +188,13 @@ class RoomFurnisher:
             return self._commit(moved, floor=False)
         return None
 
+    def fixture(self, piece: Piece) -> Piece | None:
+        """Fix trim (frames, baseboards) to the walls part by part, leaving out the parts that would
+        cut into something already there (a staircase, a window's opening); None if no part fits."""
+        taken = np.array(self.part_boxes) if self.part_boxes else np.zeros((0, 2, 3))
+        free = [p for p in piece.parts if self._inside(p.bounds()) and not overlaps(p.bounds(), taken)]
+        return self._commit(Piece(piece.category, piece.names, free), floor=False) if free else None
+
     def at_wall_position(self, piece: Piece, side: str, along: float, height: float) -> Piece | None:
         """Hang `piece` centred at `along` (x for south/north walls, z for west/east) on a given wall."""
         turned = piece.moved(SIDES[side], np.zeros(3))
@@ -218,13 +225,15 @@ def _full_bounds(piece: Piece) -> np.ndarray:
 
 
 def _keep_out(opening: Opening, room: Room) -> np.ndarray:
-    """The space a door swings through (0.9 m into the room) or a window's opening (wall depth only)."""
-    depth = 0.9 if opening.kind in ("door", "entrance") else HALF_WALL + 0.02
-    margin = 0.1 if opening.kind in ("door", "entrance") else 0.0
+    """The space a door swings through (0.9 m into the room) or a window's opening (wall depth only;
+    its frame may touch it on every side)."""
+    door = opening.kind in ("door", "entrance")
+    depth = 0.9 if door else HALF_WALL + 0.02
+    margin = 0.1 if door else 0.0
     inward = 1.0 if (opening.axis == "x" and abs(opening.fixed - room.z0 / 100) < 1e-9) or \
         (opening.axis == "z" and abs(opening.fixed - room.x0 / 100) < 1e-9) else -1.0
     near, far = sorted((opening.fixed, opening.fixed + inward * depth))
-    top = opening.top + 0.05
+    top = opening.top + (0.05 if door else 0.0)
     if opening.axis == "x":
         return np.array([[opening.start - margin, opening.bottom, near], [opening.end + margin, top, far]])
     return np.array([[near, opening.bottom, opening.start - margin], [far, top, opening.end + margin]])

@@ -8,6 +8,7 @@ import numpy as np
 
 from pipeline.scenes.procedural import furniture as fu
 from pipeline.scenes.procedural.furniture import Piece
+from pipeline.scenes.procedural.geometry import Box
 from pipeline.scenes.procedural.layout import Opening
 from pipeline.scenes.procedural.placement import SIDES, RoomFurnisher
 
@@ -182,11 +183,57 @@ RECIPES: dict[str, Callable[[RoomFurnisher, np.random.Generator], None]] = {
 }
 
 
-def _window_side(opening: Opening, f: RoomFurnisher) -> str:
+def _wall_side(opening: Opening, f: RoomFurnisher) -> str:
+    """Which of the room's walls holds `opening`."""
     room = f.room
     if opening.axis == "x":
         return "south" if abs(opening.fixed - room.z0 / 100) < 1e-9 else "north"
     return "west" if abs(opening.fixed - room.x0 / 100) < 1e-9 else "east"
+
+
+# Trim: frames 6 cm wide standing 1.5 cm off the wall; baseboards thinner than the gap furniture keeps
+# to the wall (placement.WALL_GAP), so a cabinet stands in front of one, never through it.
+FRAME_WIDTH, FRAME_DEPTH = 0.06, 0.015
+BASEBOARD_HEIGHT, BASEBOARD_DEPTH = 0.07, 0.009
+
+
+def _on_wall_face(f: RoomFurnisher, side: str, start: float, end: float, bottom: float, top: float,
+                  depth: float, color: tuple[int, int, int]) -> Box:
+    """A box on the inside face of wall `side`, spanning [start, end] along it (clipped to the room)."""
+    x0, z0, x1, z1 = f.inner
+    if side in ("south", "north"):
+        start, end = max(start, x0), min(end, x1)
+        z = z0 if side == "south" else z1 - depth
+        return fu.block(start, bottom, z, end, top, z + depth, "paint", color)
+    start, end = max(start, z0), min(end, z1)
+    x = x0 if side == "west" else x1 - depth
+    return fu.block(x, bottom, start, x + depth, top, end, "paint", color)
+
+
+def trim(f: RoomFurnisher, rng: np.random.Generator) -> None:
+    """Door and window frames around every opening of the room and baseboards along its walls: the
+    thin, often-seen instances that make up much of a real scan's annotations."""
+    color = fu.WHITE if rng.random() < 0.7 else fu.WOODS[int(rng.integers(len(fu.WOODS)))]
+    w = FRAME_WIDTH
+    for opening in f.openings:
+        side = _wall_side(opening, f)
+        jambs = [(opening.start - w, opening.start), (opening.end, opening.end + w)]
+        parts = [_on_wall_face(f, side, a, b, opening.bottom, opening.top, FRAME_DEPTH, color) for a, b in jambs]
+        parts.append(_on_wall_face(f, side, opening.start - w, opening.end + w, opening.top, opening.top + w, FRAME_DEPTH, color))
+        if opening.kind == "window":
+            parts.append(_on_wall_face(f, side, opening.start - w, opening.end + w, opening.bottom - w, opening.bottom,
+                                       FRAME_DEPTH, color))
+            f.fixture(Piece(9, ("window frame", "windowframe", "windowsill"), parts))
+        else:
+            f.fixture(Piece(4, ("doorframe", "door frame"), parts))
+    x0, z0, x1, z1 = f.inner
+    boards = []
+    for side, (low, high) in (("south", (x0, x1)), ("north", (x0, x1)), ("west", (z0, z1)), ("east", (z0, z1))):
+        doors = sorted((o.start - w, o.end + w) for o in f.openings if o.kind != "window" and _wall_side(o, f) == side)
+        for start, end in zip([low] + [b for _, b in doors], [a for a, _ in doors] + [high], strict=True):
+            if end - start > 0.05:
+                boards.append(_on_wall_face(f, side, start, end, 0.0, BASEBOARD_HEIGHT, BASEBOARD_DEPTH, color))
+    f.fixture(Piece(1, ("baseboard", "molding", "trim", "skirting board"), boards))
 
 
 def decorate(f: RoomFurnisher, rng: np.random.Generator, ceiling: float, clutter_density: float) -> None:
@@ -194,15 +241,18 @@ def decorate(f: RoomFurnisher, rng: np.random.Generator, ceiling: float, clutter
     x0, z0, x1, z1 = f.inner
     if f.room.kind not in ("bathroom", "laundry room"):
         for window in [o for o in f.openings if o.kind == "window"]:
-            side = _window_side(window, f)
+            side = _wall_side(window, f)
             curtain = fu.wall_item(rng, "curtain")
             width = curtain.bounds()[1, 0] - curtain.bounds()[0, 0]
             height = min(ceiling - 0.05, window.top + 0.15) - (curtain.bounds()[1, 1])
-            for along in (window.start - width / 2 - 0.02, window.end + width / 2 + 0.02):
+            beside = width / 2 + FRAME_WIDTH + 0.02
+            for along in (window.start - beside, window.end + beside):
                 f.at_wall_position(curtain, side, along, max(0.05, height))
     for _ in range(int(rng.integers(1, 4)) if f.room.kind != "bathroom" else 0):
         f.on_wall(fu.wall_item(rng, "picture"), float(rng.uniform(1.2, 1.6)))
     f.on_wall(fu.wall_item(rng, "switch"), 1.1)
+    for _ in range(int(rng.integers(1, 4))):
+        f.on_wall(fu.wall_item(rng, "outlet"), 0.3)
     if rng.random() < 0.4:
         f.on_wall(fu.wall_item(rng, "clock" if rng.random() < 0.5 else "sconce"), float(rng.uniform(1.6, 1.9)))
     centre = ((x0 + x1) / 2, (z0 + z1) / 2)
@@ -211,6 +261,9 @@ def decorate(f: RoomFurnisher, rng: np.random.Generator, ceiling: float, clutter
     f.on_ceiling(fu.ceiling_item(rng, "detector"), float(rng.uniform(x0 + 0.3, x1 - 0.3)), float(rng.uniform(z0 + 0.3, z1 - 0.3)))
     if rng.random() < 0.6:
         f.on_ceiling(fu.ceiling_item(rng, "vent"), float(rng.uniform(x0 + 0.3, x1 - 0.3)), float(rng.uniform(z0 + 0.3, z1 - 0.3)))
+    if f.room.kind not in ("bathroom", "kitchen"):
+        for _ in range(int(rng.integers(0, 4))):
+            f.against_wall(fu.floor_item(rng))
     clutter_on_surfaces(f, rng, clutter_density)
 
 
