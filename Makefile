@@ -10,5 +10,6 @@ demo: setup
 test: setup
 	.venv/bin/python -m pytest
 
-benchmarks: setup
+benchmarks:
+	@EXTRAS=test,bench bash deploy/setup.sh
 	@for bench in benchmarks/bench_*.py; do echo "== $$bench"; .venv/bin/python $$bench || exit 1; done
