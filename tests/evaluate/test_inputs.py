@@ -107,6 +107,20 @@ def test_pt_predictions_without_torch_give_a_clear_error(case) -> None:
         evaluate_spec(MvpdSplit(gt, "test").videos()[0], pred, PROTOCOL)
 
 
+def test_pt_predictions_score_exactly_like_the_same_json(case) -> None:
+    torch = pytest.importorskip("torch")
+    gt, pred = case
+    spec = MvpdSplit(gt, "test").videos()[0]
+    expected, _ = evaluate_spec(spec, pred, PROTOCOL)
+    for path in sorted((pred / "panomasksRLE" / VIDEO).glob("*.json")):
+        rles = json.loads(path.read_text())["coco_rle"]
+        # The published containers hold pycocotools' own output: counts as bytes.
+        torch.save({"coco_rle": [{**rle, "counts": rle["counts"].encode()} for rle in rles]}, path.with_suffix(".pt"))
+        path.unlink()
+    video, missing = evaluate_spec(spec, pred, PROTOCOL)
+    assert missing == [] and video == expected and counts(video, ZERO_SHOT, 1) == (1, 0, 0)
+
+
 def test_empty_coco_rle_list_is_an_empty_frame(case) -> None:
     gt, pred = case
     _rewrite(pred, 0, {"coco_rle": []})

@@ -63,3 +63,16 @@ def test_torch_adapter_only_with_torch() -> None:
             reader.TorchVideoDataset  # noqa: B018
     else:
         assert reader.TorchVideoDataset is not None
+
+
+def test_torch_dataset_gives_the_clips_as_tensors(run: RunFolder) -> None:
+    torch = pytest.importorskip("torch")
+    dataset = reader.TorchVideoDataset(run.root, clip_len=4, stride=2)
+    assert len(dataset) == len(clip_index(run, clip_len=4, stride=2)) == 8
+    item, clip = dataset[0], next(iter_clips(run, clip_len=4, stride=2))
+    assert item["rgb"].shape == (4, 3, 48, 64) and item["rgb"].dtype == torch.uint8
+    assert np.array_equal(item["rgb"].permute(0, 2, 3, 1).numpy(), clip["rgb"])
+    assert item["depth"].dtype == torch.int32 and np.array_equal(item["depth"].numpy(), clip["depth"])
+    assert item["panoptic"].dtype == torch.int64 and np.array_equal(item["panoptic"].numpy(), clip["panoptic"])
+    batch = next(iter(torch.utils.data.DataLoader(dataset, batch_size=2)))
+    assert batch["panoptic"].shape == (2, 4, 48, 64) and len(batch["video_name"]) == 2
