@@ -26,7 +26,7 @@ SCENES = register(
         column("max_y", pa.float64(), "bounding box maximum y, metres"),
         column("max_z", pa.float64(), "bounding box maximum z, metres"),
         column("object_count", pa.int32(), "labelled object instances (void excluded)"),
-        column("floor_area", pa.float64(), "square metres of upward-facing faces of floor-category objects"),
+        column("floor_area", pa.float64(), "square metres of floor seen from above (union of upward floor-category faces per storey; rugs not twice)"),
         column("void_triangles", pa.int64(), "triangles with object id 0 (void)"),
         column("unknown_colors", pa.int64(), "distinct semantic colours with no row in the source's table (void)"),
         column("to_world", pa.list_(pa.float64(), 16), "4x4 row-major transform from the file's frame to the world"),

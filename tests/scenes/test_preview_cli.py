@@ -27,6 +27,17 @@ def test_stats_count_rooms_and_categories(small_house: Scene) -> None:
     assert stats["objects_per_category"]["wall"] == len(walls) == 2 * stats["rooms"]
 
 
+def test_floor_area_counts_a_rug_on_the_floor_once(small_house: Scene) -> None:
+    from pipeline.scenes.preview import floor_area
+
+    up = small_house.face_normals()[:, 1] > 0.9
+    kind = {i: (o.category, o.raw_name) for i, o in small_house.objects.items()}
+    floors = np.isin(small_house.face_object_ids, [i for i, k in kind.items() if k == (2, "floor")]) & up
+    rugs = np.isin(small_house.face_object_ids, [i for i, k in kind.items() if k[0] == 2 and k[1] != "floor"]) & up
+    exact = float(small_house.face_areas()[floors].sum())  # rugs lie inside the rooms' floors
+    assert rugs.any() and exact <= floor_area(small_house) <= 1.01 * exact
+
+
 def test_cli_generate_preview_stats(tmp_path: Path) -> None:
     runner = CliRunner()
     result = runner.invoke(app, ["scenes", "generate", "--seed", "5", "--detail", "0.05", "--max-rooms", "4", "--out", str(tmp_path)])
