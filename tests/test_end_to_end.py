@@ -98,6 +98,18 @@ def test_stats_count_what_the_tables_hold_and_draw_them(run, tmp_path):
     assert "object instances" in result.output and picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_the_overview_draws_the_plan_every_video_of_a_trajectory_and_the_statistics(run, tmp_path):
+    from pipeline.overview import write_overview
+    from pipeline.runtime.run_folder import RunFolder
+
+    pictures = write_overview(RunFolder.open(run), tmp_path)
+    names = sorted(p.name for p in pictures)
+    assert names[-1] == "stats.png" and sum(n.endswith(".plan.png") for n in names) == 1
+    assert sum(n.endswith(".gif") for n in names) == 2  # the trajectory at both heights
+    magic = {".png": b"\x89PNG", ".gif": b"GIF8"}
+    assert all(p.read_bytes().startswith(magic[p.suffix]) for p in pictures)
+
+
 def test_stats_of_a_run_without_videos_is_a_one_line_error(tmp_path):
     from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources
     from pipeline.runtime.run_folder import RunFolder

@@ -93,7 +93,8 @@ def demo(
         pictures = write_overview(RunFolder.open(run_dir), run_dir / "previews")
     except USAGE_ERRORS as error:
         fail(str(error))
-    console.print(f"[bold]look at:[/] {len(pictures)} pictures in {run_dir / 'previews'}, e.g. {pictures[-2]}")
+    console.print(f"[bold]look at:[/] {len(pictures)} pictures in {run_dir / 'previews'}, e.g. {pictures[-3]} "
+                  f"and {pictures[-1]}")
     console.print(f'[bold]query:[/] mvpd query {run_dir} "select embodiment, count(*) videos, sum(frames) frames '
                   'from videos group by 1"')
     _finish(report)
