@@ -190,9 +190,11 @@ class RoomFurnisher:
 
     def fixture(self, piece: Piece) -> Piece | None:
         """Fix trim (frames, baseboards) to the walls part by part, leaving out the parts that would
-        cut into something already there (a staircase, a window's opening); None if no part fits."""
+        cut into something already there (a staircase, a window's opening) or that clipping to the room
+        left flat (a jamb beside an opening in a corner); None if no part fits."""
         taken = np.array(self.part_boxes) if self.part_boxes else np.zeros((0, 2, 3))
-        free = [p for p in piece.parts if self._inside(p.bounds()) and not overlaps(p.bounds(), taken)]
+        free = [p for p in piece.parts if np.all(np.diff(p.bounds(), axis=0) > EPSILON)
+                and self._inside(p.bounds()) and not overlaps(p.bounds(), taken)]
         return self._commit(Piece(piece.category, piece.names, free), floor=False) if free else None
 
     def at_wall_position(self, piece: Piece, side: str, along: float, height: float) -> Piece | None:
