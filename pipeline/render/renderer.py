@@ -103,30 +103,34 @@ class VideoRenderer:
     def buffers(self, hits: RayHits, rng: np.random.Generator | None = None) -> RenderedFrame:
         """RGB, depth (mm) and panoptic ids of traced hits (split from `render` so benchmarks can time it)."""
         sensor = self.embodiment.sensor
+        shape = hits.depth.shape
+        frame = RenderedFrame(rgb=np.empty((*shape, 3), np.uint8), depth=np.empty(shape, np.uint16),
+                              panoptic=np.empty(shape, np.uint32), dense=np.empty(shape, np.int32))
         bands = range(len(self._bands))
         if self.raycaster.threads == 1:
-            parts = [self._band_buffers(hits, band) for band in bands]
+            for band in bands:
+                self._fill_band(hits, band, frame)
         else:
-            parts = list(thread_pool(self.raycaster.threads).map(lambda band: self._band_buffers(hits, band), bands))
-        rgb, clean, panoptic, dense = (np.concatenate(buffers) for buffers in zip(*parts))
+            list(thread_pool(self.raycaster.threads).map(lambda band: self._fill_band(hits, band, frame), bands))
         if self.sensor is None:
-            return RenderedFrame(rgb=rgb, depth=clean, panoptic=panoptic, dense=dense)
+            return frame
         if rng is None:
             raise ValueError(f"sensor.model {sensor.model!r} draws noise: pass a seeded rng (context.rng)")
         # Whole frame, never by band: the noise draws follow the row-major order of the valid pixels.
         noisy = self.sensor.apply(hits.depth, hits, self.ray_lengths, rng)
-        return RenderedFrame(rgb=rgb, depth=depth_to_millimetres(noisy, sensor.near, sensor.far),
-                             panoptic=panoptic, depth_clean=clean, dense=dense)
+        frame.depth_clean, frame.depth = frame.depth, depth_to_millimetres(noisy, sensor.near, sensor.far)
+        return frame
 
-    def _band_buffers(self, hits: RayHits, band: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """RGB, clean depth (mm), panoptic ids and dense labels of the rows of one band."""
+    def _fill_band(self, hits: RayHits, band: int, frame: RenderedFrame) -> None:
+        """Write the RGB, clean depth (mm), panoptic ids and dense labels of the rows of one band into `frame`."""
         rows, shader = self._bands[band]
         hits = hits.rows(rows)
         sensor = self.embodiment.sensor
-        rgb = shader.shade(self.colors.planes(hits), hits)
-        clean = depth_to_millimetres(hits.depth, sensor.near, sensor.far)
-        # A miss (face F) picks the trailing 0 (void) of both tables.
-        return rgb, clean, self.labels.object_ids[hits.face], self.labels.dense_of_face[hits.face]
+        shader.shade_surfaces(self.colors, hits, out=frame.rgb[rows])
+        frame.depth[rows] = depth_to_millimetres(hits.depth, sensor.near, sensor.far)
+        # A miss (face F) picks the trailing 0 (void) of both tables; "clip" writes straight into `out`.
+        np.take(self.labels.object_ids, hits.face, out=frame.panoptic[rows], mode="clip")
+        np.take(self.labels.dense_of_face, hits.face, out=frame.dense[rows], mode="clip")  # type: ignore[index]
 
 
 def limit_worker_threads(threads: int) -> None:
