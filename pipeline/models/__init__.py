@@ -1,0 +1,1 @@
+"""Image segmenters, FastSPAM self-prompting and the `predict` stage."""

@@ -1,0 +1,70 @@
+"""The segmenter contract: one RGB-D frame in, class-agnostic "everything" masks out.
+
+Every image segmenter the project runs (the weight-free `geometric`, `oracle`, `ultralytics`, `sam`)
+implements `Segmenter`; FastSPAM wraps any of them. Built-ins are looked up by name in `SEGMENTERS`
+and imported lazily, so naming a model never imports torch unless that model needs it.
+"""
+
+from __future__ import annotations
+
+import importlib
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+
+class ModelError(ValueError):
+    """An unusable model choice (unknown name, missing extra or weights file); one line naming the fix."""
+
+
+@dataclass(frozen=True)
+class FrameInput:
+    """What a segmenter may look at for one frame.
+
+    Attributes:
+        rgb: (H, W, 3) uint8.
+        depth: (H, W) uint16 millimetres, planar z, 0 = no return; None when the video has no depth.
+        intrinsics: (fx, fy, cx, cy) in pixels, pixel centres at u + 0.5; None when unknown.
+        panoptic: (H, W) uint32 ground-truth ids; only the `oracle` segmenter reads it.
+        index: frame index t within the video (for seeded per-frame draws).
+    """
+
+    rgb: np.ndarray
+    depth: np.ndarray | None = None
+    intrinsics: tuple[float, float, float, float] | None = None
+    panoptic: np.ndarray | None = None
+    index: int = 0
+
+
+class Segmenter(ABC):
+    """An "everything" image segmenter: every mask it finds in one frame, no classes, no ids."""
+
+    name: ClassVar[str]
+    needs_ground_truth: ClassVar[bool] = False
+
+    @abstractmethod
+    def segment(self, frame: FrameInput) -> np.ndarray:
+        """Masks of one frame as an (N, H, W) bool array (N may be 0); order carries no meaning."""
+
+    def describe(self) -> dict[str, Any]:
+        """Name and options, recorded with the predictions (JSON-able)."""
+        return {"name": self.name}
+
+
+# name -> "module:Class"; each class takes its options as keyword arguments.
+SEGMENTERS: dict[str, str] = {
+    "geometric": "pipeline.models.geometric:GeometricSegmenter",
+    "oracle": "pipeline.models.oracle:OracleSegmenter",
+    "ultralytics": "pipeline.models.ultralytics_segmenter:UltralyticsSegmenter",
+    "sam": "pipeline.models.sam_segmenter:SamSegmenter",
+}
+
+
+def make_segmenter(name: str, **options: Any) -> Segmenter:
+    """The segmenter called `name`, built with `options`; ModelError when the name is unknown."""
+    if name not in SEGMENTERS:
+        raise ModelError(f"unknown model {name!r}; models are {', '.join(SEGMENTERS)}")
+    module, _, attribute = SEGMENTERS[name].partition(":")
+    return getattr(importlib.import_module(module), attribute)(**options)
