@@ -9,6 +9,7 @@ from typing import Annotated, Optional
 import typer
 
 from pipeline.cli.console import EXIT_BAD_INPUT, EXIT_FAILED, console, fail, stage_progress
+from pipeline.cli.run_commands import EXECUTOR_HELP, ExecutorChoice
 from pipeline.config import ConfigError
 from pipeline.runtime.executor import StageOrderError
 from pipeline.runtime.lock import RunLockedError
@@ -37,6 +38,7 @@ def register(app: typer.Typer) -> None:
         subsample: Annotated[Optional[int], typer.Option(help="keep every n-th row and column [default: 2]")] = None,
         all_videos: Annotated[bool, typer.Option("--all", help="evaluate every video again, even those already done")] = False,
         address: Annotated[Optional[str], typer.Option(help="Ray cluster address [default: a local Ray]")] = None,
+        executor: Annotated[ExecutorChoice, typer.Option(help=EXECUTOR_HELP)] = ExecutorChoice.auto,
     ) -> None:
         """VSQ of per-frame (or tracked) predictions, one Ray task per video; prints a table, writes JSON."""
         from pipeline.evaluate.api import evaluate_mvpd, evaluate_run
@@ -53,7 +55,7 @@ def register(app: typer.Typer) -> None:
         try:
             with stage_progress() as observer:
                 common = dict(allow_missing=allow_missing, overrides=overrides, force=all_videos, address=address,
-                              on_start=observer.on_stage_start, on_unit=observer.on_unit)
+                              on_start=observer.on_stage_start, on_unit=observer.on_unit, executor=executor.value)
                 if gt_mvpd is not None:
                     assert split is not None and out is not None
                     result = evaluate_mvpd(gt_mvpd, split, pred, work or out.with_suffix(".run"), **common)  # type: ignore[arg-type]

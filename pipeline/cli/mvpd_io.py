@@ -10,6 +10,7 @@ from typing import Annotated, Optional
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from pipeline.cli.run_commands import EXECUTOR_HELP, ExecutorChoice
 from pipeline.config import ConfigError
 from pipeline.io.mvpd import MvpdExportError, MvpdFormatError, MvpdImportError, export_release, import_release
 from pipeline.runtime.lock import RunLockedError
@@ -70,6 +71,7 @@ def import_command(
     embodiment: Annotated[str, typer.Option(help="embodiment name the videos are stored under")] = "mvpd",
     all_units: Annotated[bool, typer.Option("--all", help="re-import videos that are already up to date")] = False,
     address: Annotated[Optional[str], typer.Option(help="Ray cluster address [default: a local Ray]")] = None,
+    executor: Annotated[ExecutorChoice, typer.Option(help=EXECUTOR_HELP)] = ExecutorChoice.auto,
 ) -> None:
     """Read one split of an MVPd release into a run folder (one Ray task per video), so query, stats, preview
     and evaluate work on it. Exit 0 when every unit is done, 1 when some failed (listed), 2 on unusable input."""
@@ -78,7 +80,7 @@ def import_command(
     try:
         with stage_progress() as observer:
             summary = import_release(root, split, run_dir, embodiment, all_units, address,
-                                     on_start=observer.on_stage_start, on_unit=observer.on_unit)
+                                     on_start=observer.on_stage_start, on_unit=observer.on_unit, executor=executor.value)
             if observer.on_stage_end is not None:
                 observer.on_stage_end(summary.report)  # the stage's summary line and its failed units
     except USAGE_ERRORS as error:

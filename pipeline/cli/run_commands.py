@@ -14,16 +14,26 @@ from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, stage_prog
 from pipeline.config import ConfigError, json_schemas, load_job
 from pipeline.io.dataset_stats import StatsError, dataset_stats, write_stats_picture
 from pipeline.io.query import QueryError, query, write_result
-from pipeline.runtime.executor import StageOrderError
+from pipeline.runtime.executor import StageOrderError, StagePlan
 from pipeline.runtime.lock import RunLockedError
 from pipeline.runtime.run_folder import RunFolder, RunFolderError
-from pipeline.runtime.runner import JobReport, rerun, submit
-from pipeline.runtime.inspect import stage_states
+from pipeline.runtime.runner import JobReport, Observer, rerun, submit
 from pipeline.stages import JOB_STAGES, STAGE_CLASSES
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DEMO_JOB = REPO_ROOT / "jobs" / "demo.yaml"
 USAGE_ERRORS = (ConfigError, RunFolderError, RunLockedError, StageOrderError, QueryError, StatsError)
+
+
+class ExecutorChoice(str, Enum):
+    """Where units run: auto (in-process while the work is small, else Ray), local (in-process) or ray."""
+
+    auto = "auto"
+    local = "local"
+    ray = "ray"
+
+
+EXECUTOR_HELP = "where units run: auto = in-process while the work is small, else Ray; local; ray"
 
 
 class OutputFormat(str, Enum):
@@ -66,13 +76,15 @@ def submit_command(
     run_dir: Annotated[Optional[Path], typer.Option("--run-dir", help="run folder (default runs/<job name>)")] = None,
     address: Annotated[Optional[str], typer.Option(help="Ray cluster address; local Ray when omitted")] = None,
     stages: Annotated[Optional[str], typer.Option(help="comma-separated stages to run (default: all)")] = None,
+    executor: Annotated[ExecutorChoice, typer.Option(help=EXECUTOR_HELP)] = ExecutorChoice.auto,
 ) -> None:
-    """Run a job: every stage, only the units that are not already done with the same config."""
+    """Run a job: every stage, only the units that are not already done with the same config (or are damaged)."""
     chosen = _parse_stages(stages)
     try:
         job = load_job(job_file)
         with stage_progress() as observer:
-            report = submit(job, run_dir or Path("runs") / job.name, chosen, address, observer)
+            report = submit(job, run_dir or Path("runs") / job.name, chosen, address, _telling_damage(observer),
+                            executor.value)
     except USAGE_ERRORS as error:
         fail(str(error))
     _finish(report)
@@ -105,34 +117,82 @@ def rerun_command(
     stage: Annotated[str, typer.Option(help="stage to rerun")],
     all_units: Annotated[bool, typer.Option("--all", help="rerun every unit, not only failed/missing/stale")] = False,
     address: Annotated[Optional[str], typer.Option(help="Ray cluster address")] = None,
+    executor: Annotated[ExecutorChoice, typer.Option(help=EXECUTOR_HELP)] = ExecutorChoice.auto,
 ) -> None:
-    """Rerun one stage of a run: units that failed, are missing or are stale (or all with --all)."""
+    """Rerun one stage of a run: units that failed, are missing, stale or damaged (or all with --all)."""
     _parse_stages(stage)
     try:
         with stage_progress() as observer:
-            report = rerun(run_dir, stage, all_units, address, observer)
+            report = rerun(run_dir, stage, all_units, address, _telling_damage(observer), executor.value)
     except USAGE_ERRORS as error:
         fail(str(error))
     _finish(report)
 
 
-def status(run_dir: Annotated[Path, typer.Argument(help="run folder")]) -> None:
-    """Per stage: done / stale / failed / pending units, and each failed unit's error."""
+def _telling_damage(observer: Observer) -> Observer:
+    """`observer` that also says, in one line per stage, how many damaged units run again and why."""
+    inner = observer.on_stage_start
+
+    def start(plan: StagePlan) -> None:
+        if plan.damaged:
+            unit, problems = next(iter(sorted(plan.damaged.items())))
+            console.print(f"[yellow]{plan.stage}: {len(plan.damaged)} damaged units run again[/] "
+                          f"(e.g. {unit}: {problems[0].path} {problems[0].problem})", soft_wrap=True)
+        if inner is not None:
+            inner(plan)
+
+    return Observer(start, observer.on_unit, observer.on_stage_end)
+
+
+def status(
+    run_dir: Annotated[Path, typer.Argument(help="run folder")],
+    verify: Annotated[bool, typer.Option("--verify", help="re-read every output and check its checksum "
+                                                           "(reads the whole run; without it only sizes are checked)")] = False,
+    executor: Annotated[ExecutorChoice, typer.Option(help="--verify: " + EXECUTOR_HELP)] = ExecutorChoice.auto,
+) -> None:
+    """Per stage: done / stale / failed / damaged / pending units, each failed unit's error and each damaged unit's files."""
+    from pipeline.runtime.inspect import run_state
+
     try:
         run = RunFolder.open(run_dir)
-        states = stage_states(run)
+        if verify:
+            _verify(run, executor.value)
+        state = run_state(run)
     except USAGE_ERRORS as error:
         fail(str(error))
-    table = Table("stage", "units", "done", "stale", "failed", "pending", title=str(run.root))
-    for state in states:
-        table.add_row(state.stage, str(state.total), str(len(state.done)), str(len(state.stale)),
-                      str(len(state.failed)), str(len(state.pending)) + (f" ({state.waiting_for})" if state.waiting_for else ""))
+    table = Table("stage", "units", "done", "stale", "failed", "damaged", "pending", title=str(run.root))
+    for stage in state.stages:
+        table.add_row(stage.stage, str(stage.total), str(len(stage.done)), str(len(stage.stale)), str(len(stage.failed)),
+                      str(len(stage.damaged)),
+                      str(len(stage.pending)) + (f" ({stage.waiting_for})" if stage.waiting_for else ""))
     console.print(table)
-    for state in states:
-        for outcome in state.failed:
-            console.print(f"[red]{state.stage}/{outcome.unit}[/] attempt {outcome.attempt}: "
+    for stage in state.stages:
+        for outcome in stage.failed:
+            console.print(f"[red]{stage.stage}/{outcome.unit}[/] attempt {outcome.attempt}: "
                           f"{outcome.error_type}: {outcome.message} (log: {outcome.log_path})", soft_wrap=True)
-    raise typer.Exit(EXIT_FAILED if any(s.failed for s in states) else EXIT_OK)
+        for unit, problems in sorted(stage.damaged.items()):
+            more = f" (and {len(problems) - 1} more files)" if len(problems) > 1 else ""
+            console.print(f"[red]{stage.stage}/{unit}[/] damaged: {problems[0].path} {problems[0].problem}{more}; "
+                          f"`mvpd rerun {run_dir} --stage {stage.stage}` writes it again", soft_wrap=True)
+    for damage in state.status_damage:
+        console.print(f"[yellow]status table of stage {damage.unit}[/]: {damage.path} {damage.problem}; its outcomes "
+                      "were rebuilt from markers (failed units show as pending) until the stage runs again",
+                      soft_wrap=True)
+    unhealthy = any(s.failed or s.damaged for s in state.stages)
+    raise typer.Exit(EXIT_FAILED if unhealthy else EXIT_OK)
+
+
+def _verify(run: RunFolder, executor: str) -> None:
+    """Re-read the run's files with a progress bar (bytes); damage found is recorded for status and rerun."""
+    from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TimeRemainingColumn, TransferSpeedColumn
+
+    from pipeline.runtime.verify import verify_run
+
+    with Progress(TextColumn("verify"), BarColumn(), DownloadColumn(), TransferSpeedColumn(), TimeRemainingColumn(),
+                  console=console) as progress:
+        task = progress.add_task("verify", total=None)
+        verify_run(run, executor, on_start=lambda total: progress.update(task, total=total),
+                   on_progress=lambda done: progress.advance(task, done))
 
 
 def query_command(

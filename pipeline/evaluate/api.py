@@ -20,6 +20,7 @@ from pipeline.evaluate.ground_truth import MvpdSplit
 from pipeline.evaluate.report import EvaluationResult, result_from_table
 from pipeline.evaluate.stage import EvaluationInputs, MvpdVsqEvaluator, VsqEvaluator
 from pipeline.runtime.executor import ProgressCallback, StagePlan, StageReport, run_stage
+from pipeline.runtime.executors import ExecutorName
 from pipeline.runtime.lock import RunLock
 from pipeline.runtime.run_folder import RunFolder
 
@@ -50,31 +51,32 @@ def evaluation_job(mvpd_root: Path, split: str, overrides: dict[str, Any] | None
 def evaluate_run(run_dir: str | Path, predictions: str | Path, embodiment: str | None = None,
                  allow_missing: bool = False, overrides: dict[str, Any] | None = None, force: bool = False,
                  address: str | None = None, on_start: StartCallback | None = None,
-                 on_unit: ProgressCallback | None = None) -> EvaluationResult:
+                 on_unit: ProgressCallback | None = None, executor: ExecutorName = "auto") -> EvaluationResult:
     """VSQ of `predictions` on the rendered videos of a run; counts go to the run's `metrics/`."""
     run = RunFolder.open(run_dir)
     job = with_protocol(run.job(), overrides)
     inputs = EvaluationInputs(str(Path(predictions).resolve()), allow_missing, embodiment)
-    return _run(VsqEvaluator(job, inputs), run, force, address, on_start, on_unit)
+    return _run(VsqEvaluator(job, inputs), run, force, address, on_start, on_unit, executor)
 
 
 def evaluate_mvpd(mvpd_root: str | Path, split: str, predictions: str | Path, work_dir: str | Path,
                   allow_missing: bool = False, overrides: dict[str, Any] | None = None, force: bool = False,
                   address: str | None = None, on_start: StartCallback | None = None,
-                  on_unit: ProgressCallback | None = None) -> EvaluationResult:
+                  on_unit: ProgressCallback | None = None, executor: ExecutorName = "auto") -> EvaluationResult:
     """VSQ of `predictions` on an MVPd split; counts go to `work_dir/metrics/` (an evaluation run folder)."""
     MvpdSplit(mvpd_root, split)  # fails fast, before any folder is created, without panoptic_<split>.json
     job = evaluation_job(Path(mvpd_root).resolve(), split, overrides)
     run = RunFolder.create(work_dir, job)
     inputs = EvaluationInputs(str(Path(predictions).resolve()), allow_missing,
                               mvpd_root=str(Path(mvpd_root).resolve()), split=split)
-    return _run(MvpdVsqEvaluator(job, inputs), run, force, address, on_start, on_unit)
+    return _run(MvpdVsqEvaluator(job, inputs), run, force, address, on_start, on_unit, executor)
 
 
 def _run(stage: VsqEvaluator, run: RunFolder, force: bool, address: str | None, on_start: StartCallback | None,
-         on_unit: ProgressCallback | None) -> EvaluationResult:
+         on_unit: ProgressCallback | None, executor: ExecutorName) -> EvaluationResult:
     with RunLock(run.root):
-        report: StageReport = run_stage(stage, run, force=force, address=address, on_start=on_start, on_unit=on_unit)
+        report: StageReport = run_stage(stage, run, force=force, address=address, on_start=on_start, on_unit=on_unit,
+                                        executor=executor)
     # Units no longer in the split were retired by `run_stage`; rows of units that failed this time
     # may be left from an earlier success and are not reported as current numbers.
     failed_units = {o.unit for o in report.failed}

@@ -11,12 +11,10 @@ Layout (see schemas/README.md):
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import socket
 import time
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -24,31 +22,22 @@ import pyarrow as pa
 import yaml
 
 from pipeline.config import ConfigError, Job, job_from_resolved
+from pipeline.runtime import markers as marker_files
+from pipeline.runtime.markers import (  # noqa: F401 - Marker and atomic_write_text are imported from here too
+    STATE,
+    Marker,
+    atomic_write_text,
+    code_version,
+    describe_files,
+)
+from pipeline.runtime.tables import read_dataset
 
 JOB_FILE = "job.yaml"
-STATE = "_state"
 STAGING = "_staging"
 
 
 class RunFolderError(ValueError):
     """A path that is not a usable run folder; the message says why and what to do."""
-
-
-@dataclass
-class Marker:
-    """Proof that a unit committed: written last, atomically."""
-
-    stage: str
-    unit: str
-    config_hash: str
-    code_version: str
-    outputs: list[str]
-    rows: dict[str, int]
-    seconds: float
-    attempt: int
-    host: str
-    finished_at: float
-    info: dict[str, Any] = field(default_factory=dict)
 
 
 class RunFolder:
@@ -97,45 +86,33 @@ class RunFolder:
 
     # -------------------------------------------------------------------------------- datasets
     def read(self, dataset: str) -> pa.Table:
-        """All committed rows of a Parquet dataset of this run."""
-        from pipeline.io.tables import read_dataset
-
+        """All committed rows of a Parquet dataset of this run (marker-trusted parts only)."""
         return read_dataset(self.root, dataset)
 
     def datasets(self) -> list[str]:
-        """Names of the Parquet datasets present in the run."""
-        return sorted(p.name for p in self.root.iterdir() if p.is_dir() and any(p.glob("part-*.parquet")))
+        """Names of the Parquet datasets some marker has committed parts of."""
+        folder = self.root / STATE / marker_files.DATASET_INDEX
+        return sorted(p.name for p in folder.iterdir() if p.is_dir() and any(p.iterdir())) if folder.is_dir() else []
 
     def video_store(self, embodiment: str, video_name: str) -> Path:
         return self.root / "videos" / embodiment / f"{video_name}.zarr"
 
     # --------------------------------------------------------------------------------- markers
     def marker_path(self, stage: str, unit: str) -> Path:
-        return self.root / STATE / stage / f"{unit}.json"
+        return marker_files.marker_path(self.root, stage, unit)
 
     def marker(self, stage: str, unit: str) -> Marker | None:
-        path = self.marker_path(stage, unit)
-        try:
-            return Marker(**json.loads(path.read_text()))
-        except FileNotFoundError:
-            return None
-        except (ValueError, TypeError):
-            return None  # a damaged marker proves nothing: the unit runs again
+        """The unit's marker; None when missing, unreadable or without a manifest (the unit runs again)."""
+        return marker_files.read_marker(self.marker_path(stage, unit))
 
     def markers(self, stage: str) -> dict[str, Marker]:
-        folder = self.root / STATE / stage
-        found = {}
-        for path in sorted(folder.glob("*.json")) if folder.is_dir() else []:
-            marker = self.marker(stage, path.stem)
-            if marker is not None:
-                found[marker.unit] = marker
-        return found
+        return marker_files.stage_markers(self.root, stage)
 
     def write_marker(self, marker: Marker) -> None:
-        atomic_write_text(self.marker_path(marker.stage, marker.unit), json.dumps(asdict(marker), indent=1, sort_keys=True))
+        marker_files.write_marker(self.root, marker)
 
     def drop_marker(self, stage: str, unit: str) -> None:
-        self.marker_path(stage, unit).unlink(missing_ok=True)
+        marker_files.drop_marker(self.root, stage, unit)
 
     # --------------------------------------------------------------------------------- staging
     def staging(self, stage: str, unit: str) -> Path:
@@ -145,13 +122,31 @@ class RunFolder:
         path.mkdir(parents=True)
         return path
 
-    def commit(self, staging: Path, previous_outputs: list[str]) -> list[str]:
-        """Move every staged file or Zarr store into place, replacing earlier versions.
+    def commit_unit(self, stage: str, unit: str, staging: Path, config_hash: str, rows: dict[str, int],
+                    seconds: float, attempt: int, finished_at: float, host: str,
+                    info: dict[str, Any] | None = None) -> Marker:
+        """The commit protocol of one unit attempt (schemas/README.md): outputs into place, marker last.
+
+        The old marker goes first: a process that dies during the commit leaves a unit that is simply
+        not done. The manifest (size and CRC-32C of every file) is taken from the staged files, which
+        were just written and are read back from the page cache.
+        """
+        previous = self.marker(stage, unit)
+        self.drop_marker(stage, unit)
+        outputs = sorted(_staged_outputs(staging))
+        files = describe_files(staging, outputs)
+        self.commit(staging, outputs, previous.outputs if previous else [])
+        marker = Marker(stage, unit, config_hash, code_version(), outputs, rows, round(seconds, 3), attempt, host,
+                        finished_at, info or {}, files)
+        self.write_marker(marker)
+        return marker
+
+    def commit(self, staging: Path, outputs: list[str], previous_outputs: list[str]) -> None:
+        """Move the staged `outputs` (files or Zarr stores) into place, replacing earlier versions.
 
         Outputs of the unit's previous commit that this attempt did not produce are removed, so a
-        rerun never leaves stale rows or videos behind. Returns the committed paths (relative).
+        rerun never leaves stale rows or videos behind.
         """
-        outputs = sorted(_staged_outputs(staging))
         for relative in outputs:
             target = self.root / relative
             target.parent.mkdir(parents=True, exist_ok=True)
@@ -159,7 +154,6 @@ class RunFolder:
         for relative in sorted(set(previous_outputs) - set(outputs)):
             _remove(self.root / relative)
         shutil.rmtree(staging, ignore_errors=True)
-        return outputs
 
     def log_path(self, stage: str, unit: str) -> Path:
         path = self.root / "logs" / stage / f"{unit}.log"
@@ -199,11 +193,3 @@ def _remove(path: Path) -> None:
         shutil.rmtree(path, ignore_errors=True)
     else:
         path.unlink(missing_ok=True)
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write a small text file by temp file + rename, so readers see the old or the new file whole."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    temporary.write_text(text, encoding="utf-8")
-    os.replace(temporary, path)

@@ -8,6 +8,7 @@ from typing import Callable
 
 from pipeline.config import Job
 from pipeline.runtime.executor import ProgressCallback, StageOrderError, StagePlan, StageReport, run_stage
+from pipeline.runtime.executors import ExecutorName
 from pipeline.runtime.lock import RunLock
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.stages import JOB_STAGES, make_stage
@@ -35,30 +36,30 @@ class JobReport:
 
 
 def submit(job: Job, run_dir: str | Path, stages: list[str] | None = None, address: str | None = None,
-           observer: Observer | None = None) -> JobReport:
-    """Create (or reopen) the run folder for `job` and run its stages; only stale units run."""
+           observer: Observer | None = None, executor: ExecutorName = "auto") -> JobReport:
+    """Create (or reopen) the run folder for `job` and run its stages; only stale or damaged units run."""
     run = RunFolder.prepare(run_dir)
     with RunLock(run.root):
         run.save_job(job)
-        return _run(job, run, stages or list(JOB_STAGES), force=False, address=address, observer=observer)
+        return _run(job, run, stages or list(JOB_STAGES), False, address, observer, executor)
 
 
 def rerun(run_dir: str | Path, stage: str, force: bool = False, address: str | None = None,
-          observer: Observer | None = None) -> JobReport:
-    """Run one stage of an existing run again: failed, missing and stale units, or all with `force`."""
+          observer: Observer | None = None, executor: ExecutorName = "auto") -> JobReport:
+    """Run one stage of an existing run again: failed, missing, stale and damaged units, or all with `force`."""
     run = RunFolder.open(run_dir)
     with RunLock(run.root):
-        return _run(run.job(), run, [stage], force=force, address=address, observer=observer)
+        return _run(run.job(), run, [stage], force, address, observer, executor)
 
 
 def _run(job: Job, run: RunFolder, stages: list[str], force: bool, address: str | None,
-         observer: Observer | None) -> JobReport:
+         observer: Observer | None, executor: ExecutorName) -> JobReport:
     observer = observer or Observer()
     report = JobReport(run.root)
     for name in stages:
         try:
             stage_report = run_stage(make_stage(name, job), run, force=force, address=address,
-                                     on_start=observer.on_stage_start, on_unit=observer.on_unit)
+                                     on_start=observer.on_stage_start, on_unit=observer.on_unit, executor=executor)
         except StageOrderError:
             if report.failed:  # every unit upstream failed: those failures are the news, not the order
                 break

@@ -62,7 +62,7 @@ class UnitContext:
 
     def write_table(self, dataset: str, table: pa.Table) -> Path:
         """Stage `table` as `<dataset>/part-<unit>.parquet` (the table must carry its registered schema)."""
-        from pipeline.io.tables import write_part
+        from pipeline.runtime.tables import write_part
 
         path = write_part(self.staging, dataset, self.unit.id, table)
         self._rows[dataset] = self._rows.get(dataset, 0) + table.num_rows

@@ -16,10 +16,10 @@ from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources
 from pipeline.evaluate.errors import GroundTruthError
 from pipeline.evaluate.report import result_from_table
 from pipeline.evaluate.stage import EvaluationInputs, VsqEvaluator
-from pipeline.io.tables import to_table, write_part
+from pipeline.io.tables import to_table
 from pipeline.io.zarr_video import VideoWriter
-from pipeline.runtime.executor import plan_stage, run_unit_locally
-from pipeline.runtime.run_folder import Marker, RunFolder
+from pipeline.runtime.executor import commit_tables, plan_stage, run_unit_locally
+from pipeline.runtime.run_folder import RunFolder
 
 CASE = Path(__file__).resolve().parents[1] / "data" / "vsq_small"
 NAME = "proc-000000.0000000000.0000001000"
@@ -39,9 +39,8 @@ def tiny_run(root: Path, frames: int = 17) -> RunFolder:
            "illumination": "ambient", "sensor_model": "ideal", "frames": frames, "width": 10, "height": 8, "fx": 1.0,
            "fy": 1.0, "cx": 5.0, "cy": 4.0, "exposure": 1.0, "store_path": f"videos/cam/{NAME}.zarr", "bytes": 0,
            "render_seconds": 0.0}
-    write_part(run.root, "videos", f"cam.{NAME}", to_table("videos", [row]))
-    # The proof a render unit would leave, so `evaluate` may run after it.
-    run.write_marker(Marker("render", f"cam.{NAME}", "test", "test", [], {"videos": 1}, 0.0, 1, "test", 0.0))
+    # Committed as a render unit would, so `evaluate` may run after it and readers trust the part.
+    commit_tables(run, "render", f"cam.{NAME}", {"videos": to_table("videos", [row])})
     return run
 
 

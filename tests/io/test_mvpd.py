@@ -28,8 +28,9 @@ from pipeline.io.mvpd.layout import (
     pose_to_mvpd,
     quaternion_to_matrix,
 )
-from pipeline.io.tables import to_table, write_part
+from pipeline.io.tables import to_table
 from pipeline.io.zarr_video import VideoWriter, open_video
+from pipeline.runtime.executor import commit_tables
 from pipeline.runtime.run_folder import RunFolder
 
 SAMPLE = Path(__file__).resolve().parents[1] / "data" / "vsq_small" / "MVPd"
@@ -140,7 +141,7 @@ def write_video(run: RunFolder, job: Job, name: str, frames: list[dict[str, np.n
            "height_m": attributes["height_m"], "illumination": "ambient", "sensor_model": "ideal", "frames": FRAMES,
            "width": WIDTH, "height": HEIGHT, "fx": fx, "fy": fy, "cx": cx, "cy": cy, "exposure": float("nan"),
            "store_path": f"videos/{embodiment.name}/{name}.zarr", "bytes": 0, "render_seconds": 0.0}
-    write_part(run.root, "videos", name, to_table("videos", [row]))
+    commit_tables(run, "render", name, {"videos": to_table("videos", [row])})
 
 
 def write_objects(run: RunFolder) -> None:
@@ -149,7 +150,7 @@ def write_objects(run: RunFolder) -> None:
              "mpcat40_name": "x", "is_stuff": cat in (1, 2, 17), "region": -1, "triangles": 10, "min_x": nan,
              "min_y": nan, "min_z": nan, "max_x": nan, "max_y": nan, "max_z": nan, "surface_area": 1.0}
             for obj, cat in OBJECTS.items()]
-    write_part(run.root, "objects", SCENE, to_table("objects", rows))
+    commit_tables(run, "shard", SCENE, {"objects": to_table("objects", rows)})
 
 
 @pytest.fixture(scope="module")

@@ -11,13 +11,13 @@ from typer.testing import CliRunner
 
 from pipeline.cli.main import app
 from pipeline.config import Body, Embodiment, Illumination, Job, PlanConfig, ProceduralSource, SceneSources, Sensor
-from pipeline.io.tables import to_table, write_part
+from pipeline.io.tables import to_table
 from pipeline.plan.navigable import NavigableArea
 from pipeline.plan.poses import pose_matrices
 from pipeline.plan.report import plan_reports
 from pipeline.plan.stage import PathPlanner
 from pipeline.plan.synthetic import FLOOR, room_shell, scene_from_boxes, two_rooms
-from pipeline.runtime.executor import run_unit_locally
+from pipeline.runtime.executor import commit_tables, run_unit_locally
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.scenes.scene import Scene, SceneRef
 from pipeline.scenes.shard import scene_row
@@ -55,7 +55,7 @@ def planned_run(root, job: Job, scene_ids: tuple[str, ...] = (ROOMS,)) -> tuple[
     run = RunFolder.create(root, job)
     for scene_id in scene_ids:
         ref = SceneRef(scene_id, "procedural", "", load_procedural)
-        write_part(run.root, "scenes", scene_id, to_table("scenes", [scene_row(SCENES[scene_id], ref)]))
+        commit_tables(run, "shard", scene_id, {"scenes": to_table("scenes", [scene_row(SCENES[scene_id], ref)])})
     stage = BoxPlanner(job)
     return run, {unit.id: run_unit_locally(stage, run, unit) for unit in stage.units(run)}
 

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.config import Illumination, Job, ProceduralSource, RenderConfig, SceneSources
-from pipeline.io.tables import to_table, write_part
+from pipeline.io.tables import to_table
 from pipeline.plan.poses import level_camera_rotations, matrix_to_quaternion
 from pipeline.render.stage import RgbdRenderer
-from pipeline.runtime.executor import run_unit_locally
+from pipeline.runtime.executor import commit_tables, run_unit_locally
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.scenes.scene import Scene
 from tests.render.tiny_scenes import embodiment, room_scene
@@ -54,8 +54,8 @@ def write_plan(run: RunFolder, job: Job) -> None:
                 qw, qx, qy, qz = quaternions[t]
                 frames.append({"embodiment": body.name, "video_name": name, "frame": t, "px": 0.0, "py": height,
                                "pz": -1.5 + 0.05 * t, "qw": qw, "qx": qx, "qy": qy, "qz": qz})
-    write_part(run.root, "trajectories", "room", to_table("trajectories", trajectories))
-    write_part(run.root, "frames", "room", to_table("frames", frames))
+    commit_tables(run, "plan", "room", {"trajectories": to_table("trajectories", trajectories),
+                                        "frames": to_table("frames", frames)})
 
 
 def render_tiny_run(root: Path, seed: int = 0) -> RunFolder:

@@ -23,7 +23,7 @@ ray.cloudpickle.register_pickle_by_value(sys.modules[tiny_stage.__name__])
 def _forget_tiny_table():
     """The tiny table is registered for these tests only: take it out of the registry afterwards."""
     yield
-    from pipeline.io import tables
+    from pipeline.runtime import tables
 
     tables._REGISTRY.pop("tiny", None)
 

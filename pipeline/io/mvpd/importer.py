@@ -43,6 +43,7 @@ from pipeline.io.segments import DenseLabels, FrameSegments, frame_segments
 from pipeline.io.tables import spec, to_table
 from pipeline.io.zarr_video import VideoWriter
 from pipeline.runtime.executor import ProgressCallback, StagePlan, StageReport, run_stage
+from pipeline.runtime.executors import ExecutorName
 from pipeline.runtime.lock import RunLock
 from pipeline.runtime.run_folder import RunFolder, RunFolderError
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
@@ -98,7 +99,7 @@ class ImportSummary:
 
 def import_release(root: Path, split: str, run_root: Path, embodiment: str = DEFAULT_EMBODIMENT, force: bool = False,
                    address: str | None = None, on_start: Callable[[StagePlan], None] | None = None,
-                   on_unit: ProgressCallback | None = None) -> ImportSummary:
+                   on_unit: ProgressCallback | None = None, executor: ExecutorName = "auto") -> ImportSummary:
     """Read `<root>/<split>` of an MVPd release into the run folder `run_root` (created when new).
 
     Videos are imported in parallel as Ray tasks; a video that fails is recorded in the run's status
@@ -112,6 +113,7 @@ def import_release(root: Path, split: str, run_root: Path, embodiment: str = DEF
         force: re-import units whose marker says they are up to date.
         address: Ray cluster address (a local Ray when None).
         on_start, on_unit: progress callbacks of `run_stage` (the plan; each finished unit's outcome).
+        executor: where units run ("auto": in-process while the split is small, else Ray; "local"; "ray").
     """
     started = time.monotonic()
     paths = SplitPaths(Path(root).expanduser().resolve(), split)
@@ -129,7 +131,7 @@ def import_release(root: Path, split: str, run_root: Path, embodiment: str = DEF
             on_start(plan)
 
     with RunLock(run.root):
-        report = run_stage(stage, run, force=force, address=address, on_start=start, on_unit=on_unit)
+        report = run_stage(stage, run, force=force, address=address, on_start=start, on_unit=on_unit, executor=executor)
     return _summary(run, {v.video_name for v in videos}, plans[0], report, time.monotonic() - started)
 
 

@@ -1,0 +1,88 @@
+"""One attempt of one unit: stage it, commit it, write its marker, record the outcome.
+
+Runs in a Ray worker or in the driver (the inline executor): the same code either way, so where a
+unit runs never changes what it writes.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import sys
+import time
+import traceback
+from pathlib import Path
+
+from pipeline.runtime.run_folder import RunFolder
+from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
+from pipeline.runtime.status import UnitOutcome
+
+
+def execute_unit(stage: Stage, run_root: str, unit: Unit, attempt: int) -> UnitOutcome:
+    """Run one unit: stage it, commit it, write its marker.
+
+    `attempt` is the run folder's count for this unit (earlier runs + 1); a Ray retry after a dead
+    worker adds its retry number, so the marker and status say attempt 2 when the first worker died.
+    Errors raised by the stage become a failed outcome; a dying process leaves only its staging folder.
+    """
+    run = RunFolder(run_root)
+    retry = ray_retry_number()
+    attempt += retry
+    log_file = run.log_path(stage.name, unit.id)
+    logger, handler = _unit_logger(stage.name, unit.id, log_file)
+    started = time.perf_counter()
+    relative_log = str(log_file.relative_to(run.root))
+    try:
+        logger.info("unit %s of stage %s, attempt %s, on %s%s", unit.id, stage.name, attempt, socket.gethostname(),
+                    f" (Ray retry {retry}: the worker of the previous attempt died)" if retry else "")
+        staging = run.staging(stage.name, unit.id)
+        context = UnitContext(stage.job, run, stage.name, unit, staging, logger)
+        result = stage.run_unit(unit, context) or UnitResult()
+        marker = run.commit_unit(stage.name, unit.id, staging, stage.unit_hash(unit),
+                                 {**context.rows_written, **result.rows}, time.perf_counter() - started, attempt,
+                                 time.time(), socket.gethostname(), result.info)
+        logger.info("committed %s outputs (%s files) in %.2f s", len(marker.outputs), len(marker.files), marker.seconds)
+        return UnitOutcome(stage.name, unit.id, "done", attempt, log_path=relative_log, seconds=marker.seconds)
+    except Exception as error:  # noqa: BLE001 - every unit error is recorded, none escapes to Ray
+        logger.error("failed: %s\n%s", error, traceback.format_exc())
+        message = " ".join(str(error).split()) or type(error).__name__
+        return UnitOutcome(stage.name, unit.id, "failed", attempt, type(error).__name__, message, relative_log,
+                           time.perf_counter() - started)
+    finally:
+        logger.removeHandler(handler)
+        handler.close()
+
+
+def ray_retry_number() -> int:
+    """How often Ray has retried the task running this code (0 on a first try, in the driver, or without Ray)."""
+    ray = sys.modules.get("ray")
+    if ray is None or not ray.is_initialized():
+        return 0
+    try:
+        worker = ray._private.worker.global_worker
+        if worker.mode != ray.WORKER_MODE:
+            return 0
+        # Not in Ray's public API (2.60); without it the attempt is the driver's count.
+        return int(worker.core_worker.get_current_task_attempt_number())
+    except (AttributeError, TypeError, ValueError):
+        return 0
+
+
+def append_to_unit_log(run: RunFolder, stage: str, unit: str, message: str) -> None:
+    """Add a line to a unit's log from the driver (e.g. why its earlier worker died)."""
+    logger, handler = _unit_logger(stage, unit, run.log_path(stage, unit))
+    try:
+        logger.warning("%s", message)
+    finally:
+        logger.removeHandler(handler)
+        handler.close()
+
+
+def _unit_logger(stage: str, unit: str, path: Path) -> tuple[logging.Logger, logging.Handler]:
+    logger = logging.getLogger(f"mvpd.unit.{stage}.{unit}")
+    logger.setLevel(logging.INFO)
+    logger.propagate = False
+    handler = logging.FileHandler(path, mode="a", encoding="utf-8")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
+    logger.addHandler(handler)
+    return logger, handler

@@ -1,0 +1,246 @@
+"""Markers: a unit's proof of completion and the manifest of its outputs (schemas/README.md, "Commit protocol").
+
+A marker `_state/<stage>/<unit>.json` names every file the unit committed, with its size and CRC-32C,
+and is written last. Readers trust only files a marker names (`pipeline.runtime.tables.dataset_parts`),
+`mvpd status` checks that each named file exists with its size, and `mvpd status --verify` re-reads
+them against their checksums. A unit whose files are missing, resized or (after a verify) corrupt is
+*damaged*: it is planned again like a unit without a marker.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from dataclasses import asdict, dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Iterable
+
+import google_crc32c
+
+log = logging.getLogger(__name__)
+
+STATE = "_state"
+MARKER_VERSION = 2
+# Which stages committed parts of which dataset: `_state/_datasets/<dataset>/<stage>` (empty files), so a
+# reader of one dataset reads the markers of the stages that wrote it, not of every stage of the run.
+DATASET_INDEX = "_datasets"
+# The driver's status table is committed like a unit of this pseudo-stage (unit = the stage it describes).
+STATUS_STAGE = "_status"
+DAMAGE_SUFFIX = ".damaged"
+_BLOCK = 4 * 2**20
+
+
+@dataclass(frozen=True)
+class OutputFile:
+    """One committed file: path relative to the run folder ('/'-separated), size in bytes, CRC-32C (hex)."""
+
+    path: str
+    size: int
+    crc32c: str
+
+
+@dataclass
+class Marker:
+    """Proof that a unit committed, written last and atomically; `files` is the manifest readers trust."""
+
+    stage: str
+    unit: str
+    config_hash: str
+    code_version: str
+    outputs: list[str]
+    rows: dict[str, int]
+    seconds: float
+    attempt: int
+    host: str
+    finished_at: float
+    info: dict[str, Any] = field(default_factory=dict)
+    files: list[OutputFile] = field(default_factory=list)
+    version: int = MARKER_VERSION
+
+
+@dataclass(frozen=True)
+class Damage:
+    """A problem with one committed file of one unit (`path` relative to the run folder)."""
+
+    stage: str
+    unit: str
+    path: str
+    problem: str
+
+    def line(self) -> str:
+        return f"{self.stage}/{self.unit}: {self.path} {self.problem}"
+
+
+# ------------------------------------------------------------------------------------ checksums
+
+
+def file_checksum(path: Path) -> str:
+    """CRC-32C of a file as 8 hex digits (hardware-accelerated; the checksum S3 and GCS also keep)."""
+    checksum = google_crc32c.Checksum()
+    with open(path, "rb") as handle:
+        while block := handle.read(_BLOCK):
+            checksum.update(block)
+    return checksum.digest().hex()
+
+
+def describe_files(root: Path, relative_paths: Iterable[str]) -> list[OutputFile]:
+    """Manifest entries of committed outputs below `root`; a folder (a Zarr store) is listed file by file."""
+    files = []
+    for relative in relative_paths:
+        path = root / relative
+        members = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+        for member in members:
+            files.append(OutputFile(member.relative_to(root).as_posix(), member.stat().st_size, file_checksum(member)))
+    return sorted(files, key=lambda f: f.path)
+
+
+@lru_cache(maxsize=1)
+def code_version() -> str:
+    """Package version + hash of the package's source files: changes whenever the code does."""
+    from pipeline import __version__
+
+    digest = hashlib.sha256()
+    for path in sorted(Path(__file__).resolve().parents[1].rglob("*.py")):
+        digest.update(path.read_bytes())
+    return f"{__version__}+{digest.hexdigest()[:12]}"
+
+
+# --------------------------------------------------------------------------------- marker files
+
+
+def marker_path(root: Path, stage: str, unit: str) -> Path:
+    return Path(root) / STATE / stage / f"{unit}.json"
+
+
+def read_marker(path: Path) -> Marker | None:
+    """The marker at `path`, or None when it is missing, unreadable or from before manifests (version 1)."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if data.get("version", 1) < MARKER_VERSION:
+            return None  # no manifest: nothing can be checked, so it proves nothing; the unit runs again
+        data["files"] = [OutputFile(**f) for f in data["files"]]
+        return Marker(**data)
+    except FileNotFoundError:
+        return None
+    except (ValueError, TypeError, KeyError, AttributeError):
+        return None  # a damaged marker proves nothing: the unit runs again
+
+
+def stage_markers(root: Path, stage: str) -> dict[str, Marker]:
+    """Every valid marker of one stage, by unit id."""
+    folder = Path(root) / STATE / stage
+    found = {}
+    for path in sorted(folder.glob("*.json")) if folder.is_dir() else []:
+        marker = read_marker(path)
+        if marker is not None:
+            found[marker.unit] = marker
+    return found
+
+
+def write_marker(root: Path, marker: Marker) -> None:
+    """Index the marker's datasets, then write the marker atomically (the commit point of the unit)."""
+    for dataset in sorted({f.path.split("/")[0] for f in marker.files if f.path.endswith(".parquet")}):
+        entry = Path(root) / STATE / DATASET_INDEX / dataset / marker.stage
+        if not entry.exists():
+            entry.parent.mkdir(parents=True, exist_ok=True)
+            entry.touch()
+    clear_damage(root, marker.stage, marker.unit)
+    atomic_write_text(marker_path(root, marker.stage, marker.unit), json.dumps(asdict(marker), indent=1, sort_keys=True))
+
+
+def drop_marker(root: Path, stage: str, unit: str) -> None:
+    marker_path(root, stage, unit).unlink(missing_ok=True)
+    clear_damage(root, stage, unit)
+
+
+def stages_writing(root: Path, dataset: str) -> list[str]:
+    """Stages with committed parts of `dataset` (from the dataset index, no scan of the data folders)."""
+    folder = Path(root) / STATE / DATASET_INDEX / dataset
+    return sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+
+
+def marked_stages(root: Path) -> list[str]:
+    """Stages (including pseudo-stages such as the status table's) that have a marker folder."""
+    folder = Path(root) / STATE
+    return sorted(p.name for p in folder.iterdir() if p.is_dir() and p.name != DATASET_INDEX) if folder.is_dir() else []
+
+
+# ------------------------------------------------------------------------------------- checking
+
+
+def check_files(marker: Marker, root: Path, verify: bool = False, recorded: bool = True) -> list[Damage]:
+    """Problems of a marker's files: missing or resized (a stat each); with `verify`, also a checksum mismatch.
+
+    `recorded` adds damage an earlier verify or reader noted for this marker (see `record_damage`).
+    """
+    found = []
+    for entry in marker.files:
+        path = Path(root) / entry.path
+        try:
+            size = path.stat().st_size
+        except FileNotFoundError:
+            found.append(Damage(marker.stage, marker.unit, entry.path, "is missing"))
+            continue
+        if size != entry.size:
+            found.append(Damage(marker.stage, marker.unit, entry.path, f"has {size} bytes, the marker says {entry.size}"))
+        elif verify and file_checksum(path) != entry.crc32c:
+            found.append(Damage(marker.stage, marker.unit, entry.path, f"fails its checksum (crc32c {entry.crc32c})"))
+    if recorded:
+        found.extend(recorded_damage(root, marker))
+    return found
+
+
+def unit_damage(root: Path, markers: dict[str, Marker]) -> dict[str, list[Damage]]:
+    """Unit id -> problems, for the units of `markers` whose committed files are not as their marker says."""
+    damaged = {}
+    for unit, marker in markers.items():
+        problems = check_files(marker, root)
+        if problems:
+            damaged[unit] = problems
+    return damaged
+
+
+def _damage_path(root: Path, stage: str, unit: str) -> Path:
+    return Path(root) / STATE / stage / f"{unit}{DAMAGE_SUFFIX}"
+
+
+def record_damage(root: Path, marker: Marker, problems: list[Damage]) -> None:
+    """Remember damage found by reading (a checksum, an unreadable part) so that `rerun` repairs the unit.
+
+    The note names the marker it judged (`finished_at`): a unit committed again since is not affected.
+    A read-only run folder keeps no note; the damage is then found again by the next verify.
+    """
+    note = {"finished_at": marker.finished_at, "problems": [asdict(p) for p in problems]}
+    try:
+        atomic_write_text(_damage_path(root, marker.stage, marker.unit), json.dumps(note, indent=1))
+    except OSError as error:
+        log.warning("cannot record damage of %s/%s: %s", marker.stage, marker.unit, error)
+
+
+def recorded_damage(root: Path, marker: Marker) -> list[Damage]:
+    """Damage recorded by an earlier verify or read for this very marker."""
+    try:
+        note = json.loads(_damage_path(root, marker.stage, marker.unit).read_text(encoding="utf-8"))
+        if note["finished_at"] != marker.finished_at:
+            return []
+        return [Damage(**p) for p in note["problems"]]
+    except FileNotFoundError:
+        return []
+    except (ValueError, TypeError, KeyError):
+        return [Damage(marker.stage, marker.unit, f"{STATE}/{marker.stage}/{marker.unit}{DAMAGE_SUFFIX}",
+                       "is an unreadable damage note")]
+
+
+def clear_damage(root: Path, stage: str, unit: str) -> None:
+    _damage_path(root, stage, unit).unlink(missing_ok=True)
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write a small text file by temp file + rename, so readers see the old or the new file whole."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    temporary.write_text(text, encoding="utf-8")
+    os.replace(temporary, path)

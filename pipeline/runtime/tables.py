@@ -1,0 +1,160 @@
+"""Parquet datasets of a run: the table registry and part-file I/O, below every stage.
+
+Every table is written with its registered schema (never an inferred one). Each area declares its tables
+with `register(...)` in `pipeline/<area>/tables.py`; those modules are found by that convention when a
+dataset is looked up, so this layer names no stage. `schemas/tables/*.json` is generated from the
+registry (`mvpd schemas`) and kept in sync by a test.
+
+Readers never list a dataset folder: `dataset_parts` returns the part files that markers name and that
+are there with the size their marker recorded (the commit protocol in schemas/README.md).
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from pipeline.runtime.markers import Damage, check_files, record_damage, stage_markers, stages_writing
+
+log = logging.getLogger(__name__)
+
+_REGISTRY: dict[str, "TableSpec"] = {}
+# Areas that declare no tables of their own (the runtime registers `status` itself, below).
+_NOT_TABLE_AREAS = frozenset({"runtime", "io", "cli", "data"})
+
+
+@dataclass(frozen=True)
+class TableSpec:
+    """A dataset name, its Arrow schema (with a description per field) and what one row is."""
+
+    name: str
+    schema: pa.Schema
+    row: str
+    version: int = 1
+
+
+def column(name: str, dtype: pa.DataType, doc: str, nullable: bool = False) -> pa.Field:
+    """A schema field whose description (with unit) is stored in the Parquet metadata."""
+    return pa.field(name, dtype, nullable=nullable, metadata={"description": doc})
+
+
+def register(name: str, fields: list[pa.Field], row: str, version: int = 1) -> TableSpec:
+    """Declare a dataset of the run folder."""
+    spec = TableSpec(name, pa.schema(fields, metadata={"dataset": name, "version": str(version)}), row, version)
+    _REGISTRY[name] = spec
+    return spec
+
+
+def all_tables() -> dict[str, TableSpec]:
+    """Every registered dataset, by name (imports each `pipeline/<area>/tables.py` once)."""
+    importlib.import_module("pipeline.runtime.status")
+    package = Path(__file__).resolve().parents[1]
+    for area in sorted(p.name for p in package.iterdir() if (p / "tables.py").is_file()):
+        if area not in _NOT_TABLE_AREAS:
+            importlib.import_module(f"pipeline.{area}.tables")
+    return dict(sorted(_REGISTRY.items()))
+
+
+def spec(name: str) -> TableSpec:
+    """The registered spec of dataset `name`; KeyError naming the known datasets otherwise."""
+    if name in _REGISTRY:
+        return _REGISTRY[name]
+    tables = all_tables()
+    if name not in tables:
+        raise KeyError(f"no registered dataset {name!r}; known: {', '.join(tables)}")
+    return tables[name]
+
+
+def to_table(name: str, rows: list[dict] | dict[str, list]) -> pa.Table:
+    """Build a table of a registered dataset from rows (list of dicts) or columns (dict of lists)."""
+    schema = spec(name).schema
+    if isinstance(rows, dict):
+        return pa.Table.from_pydict(rows, schema=schema)
+    return pa.Table.from_pylist(rows, schema=schema)
+
+
+def write_part(root: Path, dataset: str, unit_id: str, table: pa.Table) -> Path:
+    """Write `<root>/<dataset>/part-<unit_id>.parquet` atomically (temp file + rename).
+
+    `root` is a unit's staging folder: the part becomes visible to readers only once the unit's
+    marker names it (`pipeline.runtime.executor.commit_tables` does both for work done outside a stage).
+    """
+    expected = spec(dataset).schema
+    if not table.schema.equals(expected, check_metadata=False):
+        table = table.cast(expected)
+    table = table.replace_schema_metadata(expected.metadata)
+    path = Path(root) / dataset / f"part-{unit_id}.parquet"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    # Deterministic bytes: no timestamps, fixed writer options.
+    pq.write_table(table, temporary, compression="zstd", write_statistics=True, store_schema=True)
+    os.replace(temporary, path)
+    return path
+
+
+# ------------------------------------------------------------------------- trusted part files
+
+
+@dataclass(frozen=True)
+class _Part:
+    path: Path
+    stage: str
+    unit: str
+
+
+def _trusted_parts(run_root: Path, dataset: str) -> tuple[list[_Part], list[Damage]]:
+    """Part files of `dataset` named by markers, split into present-as-recorded and damaged."""
+    root = Path(run_root)
+    parts, damaged = [], []
+    prefix = f"{dataset}/"
+    for stage in stages_writing(root, dataset):
+        for unit, marker in stage_markers(root, stage).items():
+            names = {f.path for f in marker.files if f.path.startswith(prefix) and f.path.endswith(".parquet")}
+            if not names:
+                continue
+            problems = [d for d in check_files(marker, root) if d.path in names]
+            bad = {d.path for d in problems}
+            damaged.extend(problems)
+            parts.extend(_Part(root / name, stage, unit) for name in sorted(names - bad))
+    return sorted(parts, key=lambda p: p.path), damaged
+
+
+def dataset_parts(run_root: Path, dataset: str) -> list[Path]:
+    """The readable, marker-trusted part files of `dataset`, sorted: the one way every reader finds parts.
+
+    A part whose marker is gone (an attempt that died, a retired unit) is not listed, nor one that is
+    missing or has another size than its marker recorded (see `damaged_parts`).
+    """
+    return [p.path for p in _trusted_parts(run_root, dataset)[0]]
+
+
+def damaged_parts(run_root: Path, dataset: str) -> list[Damage]:
+    """The part files of `dataset` that a marker names but that are missing, resized or found unreadable."""
+    return _trusted_parts(run_root, dataset)[1]
+
+
+def read_dataset(run_root: Path, dataset: str) -> pa.Table:
+    """All trusted parts of a dataset as one table with the registered schema (empty when none).
+
+    A part that cannot be read is skipped with a warning and recorded as damage of the unit that wrote
+    it, so `mvpd status` shows that unit as damaged and `mvpd rerun` writes it again.
+    """
+    schema = spec(dataset).schema
+    tables = []
+    for part in _trusted_parts(run_root, dataset)[0]:
+        try:
+            tables.append(pq.read_table(part.path, schema=schema))
+        except (pa.ArrowException, OSError) as error:
+            relative = part.path.relative_to(run_root).as_posix()
+            log.warning("%s: unreadable Parquet part (%s); skipped, rerun stage %s to rewrite it",
+                        part.path, " ".join(str(error).split())[:200], part.stage)
+            marker = stage_markers(Path(run_root), part.stage).get(part.unit)
+            if marker is not None:
+                record_damage(Path(run_root), marker, [Damage(part.stage, part.unit, relative, "is unreadable Parquet")])
+    return pa.concat_tables(tables) if tables else schema.empty_table()
