@@ -138,6 +138,9 @@ def _telling_damage(observer: Observer) -> Observer:
             unit, problems = next(iter(sorted(plan.damaged.items())))
             console.print(f"[yellow]{plan.stage}: {len(plan.damaged)} damaged units run again[/] "
                           f"(e.g. {unit}: {problems[0].path} {problems[0].problem})", soft_wrap=True)
+        for damage in plan.status_damage:
+            console.print(f"[yellow]status table of stage {plan.stage}: {damage.path} {damage.problem}[/]; outcomes "
+                          "rebuilt from markers, the part is written again", soft_wrap=True)
         if inner is not None:
             inner(plan)
 

@@ -1,13 +1,10 @@
-"""Public face of the table registry and part I/O, kept so `from pipeline.io.tables import ...` still works.
-
-The implementation lives below the runtime in `pipeline.runtime.tables` (the runtime's status table uses
-it, so it cannot sit above the runtime); new code imports from there.
-"""
+"""Public face of `pipeline.runtime.tables` (moved below the runtime, whose status table uses it); import from there."""
 
 from pipeline.runtime.tables import (  # noqa: F401 - re-exported names
     TableSpec,
     all_tables,
     column,
+    damage_line,
     damaged_parts,
     dataset_parts,
     read_dataset,
@@ -17,5 +14,5 @@ from pipeline.runtime.tables import (  # noqa: F401 - re-exported names
     write_part,
 )
 
-__all__ = ["TableSpec", "all_tables", "column", "damaged_parts", "dataset_parts", "read_dataset", "register", "spec",
-           "to_table", "write_part"]
+__all__ = ["TableSpec", "all_tables", "column", "damage_line", "damaged_parts", "dataset_parts", "read_dataset",
+           "register", "spec", "to_table", "write_part"]

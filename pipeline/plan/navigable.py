@@ -28,11 +28,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import open3d as o3d
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from pipeline.config import Body
+from pipeline.lazy_import import lazy_module
+
+o3d = lazy_module("open3d")  # loaded when a MeshQuery is built, not when `mvpd status` lists plan units
 
 FORMAT_VERSION = 1
 MAX_GRID_CELLS = 40_000_000

@@ -24,7 +24,7 @@ from pipeline.runtime.markers import Damage, code_version, unit_damage
 from pipeline.runtime.run_folder import STAGING, Marker, RunFolder
 from pipeline.runtime.stage import Stage, Unit
 from pipeline.runtime.status import UnitOutcome, read_status, write_status
-from pipeline.runtime.tables import write_part
+from pipeline.runtime.tables import damaged_parts, write_part
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +46,7 @@ class StagePlan:
     up_to_date: list[str]
     retired: list[str] = field(default_factory=list)
     damaged: dict[str, list[Damage]] = field(default_factory=dict)  # unit -> its damaged files (also in to_run)
+    status_damage: list[Damage] = field(default_factory=list)  # the stage's status part (rebuilt, then rewritten)
 
 
 @dataclass
@@ -121,7 +122,8 @@ def plan_stage(stage: Stage, run: RunFolder, force: bool = False) -> StagePlan:
         else:
             to_run.append(unit)
     retired = sorted(set(markers) - {u.id for u in units})
-    return StagePlan(stage.name, units, to_run, up_to_date, retired, {u: d for u, d in damaged.items() if u not in retired})
+    return StagePlan(stage.name, units, to_run, up_to_date, retired, {u: d for u, d in damaged.items() if u not in retired},
+                     [d for d in damaged_parts(run.root, "status") if d.unit == stage.name])
 
 
 def upstream_damage(stage: Stage, run: RunFolder) -> dict[str, list[Damage]]:

@@ -57,7 +57,7 @@ class UnitOutcome:
 def read_status(run_root: Path, stage: str | None = None) -> dict[tuple[str, str], UnitOutcome]:
     """(stage, unit) -> latest outcome, for one stage or all; a damaged stage's rows come from its markers."""
     root = Path(run_root)
-    rows = read_dataset(root, "status").to_pylist()
+    rows = read_dataset(root, "status", warn=False).to_pylist()  # damage here is rebuilt, and shown by `status`
     found = {(r["stage"], r["unit"]): UnitOutcome(**r) for r in rows if stage is None or r["stage"] == stage}
     for damaged_stage in sorted({d.unit for d in damaged_parts(root, "status")}):
         if stage is None or damaged_stage == stage:

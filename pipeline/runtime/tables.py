@@ -139,15 +139,27 @@ def damaged_parts(run_root: Path, dataset: str) -> list[Damage]:
     return _trusted_parts(run_root, dataset)[1]
 
 
-def read_dataset(run_root: Path, dataset: str) -> pa.Table:
+def damage_line(dataset: str, damaged: list[Damage]) -> str:
+    """One line saying which parts of `dataset` were left out and how to repair them (for every reader)."""
+    stages = sorted({d.stage for d in damaged})
+    return (f"{dataset}: {len(damaged)} damaged part(s) left out, e.g. {damaged[0].line()}; "
+            f"`mvpd rerun RUN --stage {stages[0]}` writes {'them' if len(damaged) > 1 else 'it'} again"
+            + (f" (stages {', '.join(stages)})" if len(stages) > 1 else ""))
+
+
+def read_dataset(run_root: Path, dataset: str, warn: bool = True) -> pa.Table:
     """All trusted parts of a dataset as one table with the registered schema (empty when none).
 
-    A part that cannot be read is skipped with a warning and recorded as damage of the unit that wrote
-    it, so `mvpd status` shows that unit as damaged and `mvpd rerun` writes it again.
+    Damaged parts are left out with one warning line (unless `warn` is False, for a caller that reports
+    damage itself); a part that cannot be read is skipped too and recorded as damage of the unit that
+    wrote it, so `mvpd status` shows that unit as damaged and `mvpd rerun` writes it again.
     """
     schema = spec(dataset).schema
     tables = []
-    for part in _trusted_parts(run_root, dataset)[0]:
+    parts, damaged = _trusted_parts(run_root, dataset)
+    if damaged and warn:
+        log.warning("%s", damage_line(dataset, damaged))
+    for part in parts:
         try:
             tables.append(pq.read_table(part.path, schema=schema))
         except (pa.ArrowException, OSError) as error:

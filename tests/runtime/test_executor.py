@@ -19,15 +19,6 @@ from tests.runtime.tiny_stage import QuickTimeoutStage, TinyStage
 ray.cloudpickle.register_pickle_by_value(sys.modules[tiny_stage.__name__])
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _forget_tiny_table():
-    """The tiny table is registered for these tests only: take it out of the registry afterwards."""
-    yield
-    from pipeline.runtime import tables
-
-    tables._REGISTRY.pop("tiny", None)
-
-
 def make_job(heights: dict[str, list[float]], seed: int = 0) -> Job:
     return Job(name="tiny", seed=seed, scenes=SceneSources(procedural=ProceduralSource(count=1)),
                embodiments=[Embodiment(name=name, placements=h) for name, h in heights.items()])

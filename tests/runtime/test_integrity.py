@@ -100,6 +100,14 @@ def test_same_size_corruption_is_found_by_verify_and_repaired(tiny):
     assert verify_run(tiny, executor="local") == {}
 
 
+def test_verify_on_ray_finds_the_same_damage(ray_session, tiny):
+    from pipeline.runtime.verify import verify_run
+
+    (tiny.root / "tiny_files" / "c.txt").write_text("x" * (tiny.root / "tiny_files" / "c.txt").stat().st_size)
+    found = verify_run(tiny, executor="ray")
+    assert list(found) == [("tiny", "c")] and found[("tiny", "c")][0].path == "tiny_files/c.txt"
+
+
 def test_truncated_status_part_is_reported_rebuilt_from_markers_and_rewritten(tiny):
     part = tiny.root / "status" / "part-tiny.parquet"
     clean = part.read_bytes()
@@ -232,6 +240,7 @@ def test_truncated_status_part_never_blocks_status_rerun_or_submit(job_run):
     assert "status table of stage render" in result.output and "rebuilt from markers" in result.output
     result = invoke("rerun", run, "--stage", "render", "--all", "--executor", "local")
     assert result.exit_code == 0 and "2 done" in result.output, result.output
+    assert "status table of stage render: status/part-render.parquet has" in result.output
     assert "status table" not in invoke("status", run).output  # rewritten by the rerun
     assert clean_bytes(digest(run, PIXELS_AND_PLANS)) == clean_bytes(clean)
 
@@ -258,3 +267,18 @@ def test_marker_manifest_is_what_status_json_readers_rely_on(job_run):
     zarr_files = [f for f in marker["files"] if ".zarr/" in f["path"]]
     assert marker["version"] == 2 and len(zarr_files) > 4  # every file of the store, not the store as one
     assert all(set(f) == {"path", "size", "crc32c"} for f in marker["files"])
+
+
+def test_evaluate_in_process_and_on_ray_give_the_same_result(ray_session, tmp_path):
+    case = Path(__file__).resolve().parents[1] / "data" / "vsq_small"
+    results = {}
+    for executor in ("local", "ray"):
+        out = tmp_path / f"{executor}.json"
+        result = invoke("evaluate", "--gt-mvpd", case / "MVPd", "--split", "test", "--pred", case / "pred",
+                        "--out", out, "--executor", executor)
+        assert result.exit_code == 0, result.output
+        results[executor] = json.loads(out.read_text())
+        parts = digest(out.with_suffix(".run"), ("metrics",))
+        results[executor + "_metrics"] = {Path(p).name: d for p, d in parts.items()}
+    assert results["local"] == results["ray"] and results["local_metrics"] == results["ray_metrics"]
+    assert len(results["local_metrics"]) == 3  # one part per video
