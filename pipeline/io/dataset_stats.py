@@ -10,12 +10,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import duckdb
 import numpy as np
 
 from pipeline.io.query import connect
+from pipeline.lazy_import import lazy_module
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.scenes.categories import categories
+
+duckdb = lazy_module("duckdb")  # loaded on first use (see pipeline.io.query)
 
 REQUIRED = ("videos", "frame_stats", "segments")
 

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import duckdb
-
+from pipeline.lazy_import import lazy_module
 from pipeline.runtime.run_folder import RunFolder
+
+duckdb = lazy_module("duckdb")  # loaded on first query, not by every `mvpd` command
 
 
 class QueryError(ValueError):

@@ -17,9 +17,11 @@ from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 import numpy as np
-import zarr
 
 from pipeline.io.zarr_video import open_video
+from pipeline.lazy_import import lazy_module
+
+zarr = lazy_module("zarr")  # loaded on first use (see pipeline.io.zarr_video)
 
 PIXEL_ARRAYS = ("rgb", "depth", "panoptic")
 

@@ -13,8 +13,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import zarr
-from zarr.codecs import ZstdCodec
+
+from pipeline.lazy_import import lazy_module
+
+zarr = lazy_module("zarr")  # loaded on first use: commands that never open a video start faster
 
 ZARR_SCHEMA_VERSION = 1
 ARRAYS: dict[str, tuple[str, int]] = {
@@ -48,7 +50,7 @@ class VideoWriter:
             tail = (height, width, channels) if channels else (height, width)
             self.arrays[name] = self.group.create_array(
                 name, shape=(frames, *tail), chunks=(1, *tail), shards=(frames_per_shard, *tail),
-                dtype=dtype, compressors=ZstdCodec(level=level), fill_value=0,
+                dtype=dtype, compressors=zarr.codecs.ZstdCodec(level=level), fill_value=0,
                 # Store all-zero chunks too: zarr's default compares every chunk with the fill value before
                 # writing it (a full extra pass, ~3 ms per 640x480 frame); readers see the same zeros.
                 config={"write_empty_chunks": True},

@@ -109,41 +109,46 @@ class _Part:
 
 
 def _trusted_parts(run_root: Path, dataset: str) -> tuple[list[_Part], list[Damage]]:
-    """Part files of `dataset` named by markers, split into present-as-recorded and damaged."""
+    """Part files of `dataset` named by markers of undamaged units, and the damage that left the others out."""
     root = Path(run_root)
     parts, damaged = [], []
     prefix = f"{dataset}/"
     for stage in stages_writing(root, dataset):
         for unit, marker in stage_markers(root, stage).items():
-            names = {f.path for f in marker.files if f.path.startswith(prefix) and f.path.endswith(".parquet")}
+            names = sorted(f.path for f in marker.files if f.path.startswith(prefix) and f.path.endswith(".parquet"))
             if not names:
                 continue
-            problems = [d for d in check_files(marker, root) if d.path in names]
-            bad = {d.path for d in problems}
-            damaged.extend(problems)
-            parts.extend(_Part(root / name, stage, unit) for name in sorted(names - bad))
+            # Any bad file of the unit withholds all its rows: a `videos` row whose Zarr lost a shard would
+            # otherwise send readers to zeros.
+            problems = check_files(marker, root)
+            if problems:
+                damaged.extend(problems)
+            else:
+                parts.extend(_Part(root / name, stage, unit) for name in names)
     return sorted(parts, key=lambda p: p.path), damaged
 
 
 def dataset_parts(run_root: Path, dataset: str) -> list[Path]:
     """The readable, marker-trusted part files of `dataset`, sorted: the one way every reader finds parts.
 
-    A part whose marker is gone (an attempt that died, a retired unit) is not listed, nor one that is
-    missing or has another size than its marker recorded (see `damaged_parts`).
+    Listed are the parts markers name whose units are intact: a part whose marker is gone (an attempt
+    that died, a retired unit) is not listed, nor a part of a unit with any file missing, resized or
+    found corrupt (see `damaged_parts`).
     """
     return [p.path for p in _trusted_parts(run_root, dataset)[0]]
 
 
 def damaged_parts(run_root: Path, dataset: str) -> list[Damage]:
-    """The part files of `dataset` that a marker names but that are missing, resized or found unreadable."""
+    """Why parts of `dataset` are left out: the damaged files of the units that wrote them (for reporting)."""
     return _trusted_parts(run_root, dataset)[1]
 
 
 def damage_line(dataset: str, damaged: list[Damage]) -> str:
     """One line saying which parts of `dataset` were left out and how to repair them (for every reader)."""
     stages = sorted({d.stage for d in damaged})
-    return (f"{dataset}: {len(damaged)} damaged part(s) left out, e.g. {damaged[0].line()}; "
-            f"`mvpd rerun RUN --stage {stages[0]}` writes {'them' if len(damaged) > 1 else 'it'} again"
+    units = len({(d.stage, d.unit) for d in damaged})
+    return (f"{dataset}: rows of {units} damaged unit(s) left out, e.g. {damaged[0].line()}; "
+            f"`mvpd rerun RUN --stage {stages[0]}` writes {'them' if units > 1 else 'it'} again"
             + (f" (stages {', '.join(stages)})" if len(stages) > 1 else ""))
 
 

@@ -208,6 +208,8 @@ def test_deleted_zarr_shard_is_named_by_status_and_rerun_restores_the_video(job_
     shard = sorted((run / "videos" / "tiny").glob("*.zarr/rgb/c/1/*/*/*"))[0]
     video = shard.relative_to(run / "videos" / "tiny").parts[0].removesuffix(".zarr")
     shard.unlink()
+    assert len(RunFolder(run).read("videos")) == 1  # readers leave the damaged video out ...
+    assert [d.path for d in damaged_parts(run, "videos")] == [shard.relative_to(run).as_posix()]  # ... and say why
     result = invoke("status", run)
     assert result.exit_code == 1
     assert f"render/tiny.{video}" in result.output and "damaged" in result.output and "is missing" in result.output
