@@ -1,1 +1,1 @@
-"""Runtime: stage contract, run folder, markers, status, locks and the Ray executor."""
+"""Runtime: stage contract, run folder, commit protocol and markers, table I/O, status, locks, executors (inline and Ray)."""
