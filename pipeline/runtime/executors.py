@@ -133,7 +133,8 @@ def _collect(ref: object, stage: Stage, unit: Unit, attempt: int, run: RunFolder
         for retry, reason in worker_deaths(ref):
             line = f"attempt {attempt + retry} ended because its Ray worker {reason}"
             append_to_unit_log(run, stage.name, unit.id, line)
-            log.warning("%s/%s: %s", stage.name, unit.id, line)
+            log.warning("%s/%s: %s (full text in %s)", stage.name, unit.id, line[:160],
+                        run.log_path(stage.name, unit.id).relative_to(run.root))
     return outcome
 
 
