@@ -7,10 +7,12 @@ where it was seen: a deleted Zarr shard, a truncated `trajectories/` part and a 
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import sys
 from pathlib import Path
 
+import pyarrow.parquet as pq
 import pytest
 import ray.cloudpickle
 from typer.testing import CliRunner
@@ -45,6 +47,10 @@ def digest(root: Path, folders: tuple[str, ...]) -> dict[str, str]:
 
 def truncate(path: Path) -> None:
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+
+def parquet_rows(data: bytes) -> list[dict]:
+    return pq.read_table(io.BytesIO(data)).to_pylist()
 
 
 @pytest.fixture
@@ -117,21 +123,7 @@ def test_truncated_status_part_is_reported_rebuilt_from_markers_and_rewritten(ti
     assert sorted(u for _, u in statuses) == ["a", "b", "c"] and {o.state for o in statuses.values()} == {"done"}
     report = run_stage(TinyStage(tiny.job()), tiny, executor="local")
     assert report.outcomes == [] and damaged_parts(tiny.root, "status") == []
-    assert pq_rows(part) == pq_rows_of(clean)
-
-
-def pq_rows(path: Path) -> list[dict]:
-    import pyarrow.parquet as pq
-
-    return pq.read_table(path).to_pylist()
-
-
-def pq_rows_of(data: bytes) -> list[dict]:
-    import io
-
-    import pyarrow.parquet as pq
-
-    return pq.read_table(io.BytesIO(data)).to_pylist()
+    assert parquet_rows(part.read_bytes()) == parquet_rows(clean)  # same outcomes, written again
 
 
 def test_inline_and_ray_executors_write_the_same_bytes(ray_session, tiny, tmp_path):
@@ -263,7 +255,7 @@ def test_status_verify_finds_a_flipped_byte_and_rerun_repairs_it(job_run):
     assert invoke("status", run, "--verify").exit_code == 0
 
 
-def test_marker_manifest_is_what_status_json_readers_rely_on(job_run):
+def test_render_marker_lists_every_file_of_the_zarr_store(job_run):
     run, _ = job_run
     marker = json.loads(next((run / "_state" / "render").glob("*.json")).read_text())
     zarr_files = [f for f in marker["files"] if ".zarr/" in f["path"]]
