@@ -106,6 +106,17 @@ def test_same_size_corruption_is_found_by_verify_and_repaired(tiny):
     assert verify_run(tiny, executor="local") == {}
 
 
+def test_unreadable_part_of_the_right_size_is_skipped_recorded_and_repaired(tiny, caplog):
+    clean = digest(tiny.root, ("tiny", "tiny_files"))
+    part = tiny.root / "tiny" / "part-a.parquet"
+    part.write_bytes(b"\0" * part.stat().st_size)  # same size, nothing Parquet can read (not even the footer)
+    assert sorted(r["unit"] for r in tiny.read("tiny").to_pylist()) == ["b", "c"]
+    assert "unreadable Parquet part" in caplog.text and "rerun stage tiny" in caplog.text
+    assert list(plan_stage(TinyStage(tiny.job()), tiny).damaged) == ["a"]  # the reader's finding is kept
+    run_stage(TinyStage(tiny.job()), tiny, executor="local")
+    assert digest(tiny.root, ("tiny", "tiny_files")) == clean
+
+
 def test_verify_on_ray_finds_the_same_damage(ray_session, tiny):
     from pipeline.runtime.verify import verify_run
 
