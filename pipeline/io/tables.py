@@ -22,6 +22,7 @@ _TABLE_MODULES = (
     "pipeline.scenes.tables",
     "pipeline.plan.tables",
     "pipeline.render.tables",
+    "pipeline.split.tables",
     "pipeline.evaluate.tables",
 )
 
