@@ -11,7 +11,8 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from pipeline.config import ConfigError
-from pipeline.io.mvpd import MvpdExportError, MvpdFormatError, MvpdImportError, export_release, import_release
+from pipeline.io.mvpd import (MvpdExportError, MvpdFormatError, MvpdImportError, export_release, export_release_splits,
+                              import_release)
 from pipeline.runtime.lock import RunLockedError
 from pipeline.runtime.run_folder import RunFolderError
 
@@ -46,21 +47,27 @@ def _video_progress(label: str) -> Iterator[tuple[Callable[[int], None], Callabl
 def export_command(
     run_dir: Annotated[Path, typer.Argument(help="run folder to export")],
     mvpd: Annotated[Path, typer.Option("--mvpd", help="MVPd root to write; the split folder goes inside it")],
-    split: Annotated[str, typer.Option(help="split name (every video goes in it until a split stage exists)")] = "test",
+    split: Annotated[Optional[str], typer.Option(help="split to write [default: every split of the run's split stage; without one, every video as 'test']")] = None,
     embodiment: Annotated[Optional[str], typer.Option(help="embodiment to export (if the job has several)")] = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="replace an existing <mvpd>/<split>")] = False,
 ) -> None:
     """Write a run's videos as an MVPd release split: JPEG colour, uint16 depth PNG, COCO panoptic PNG, JSON."""
     from pipeline.cli.console import console, fail
+    from pipeline.split.selection import has_split
 
     try:
         with _video_progress("export") as (on_start, on_video):
-            summary = export_release(run_dir, mvpd, split, embodiment, overwrite, on_video=on_video, on_start=on_start)
+            if split is None and has_split(run_dir):
+                summaries = export_release_splits(run_dir, mvpd, embodiment, overwrite, on_video=on_video, on_start=on_start)
+            else:
+                summaries = [export_release(run_dir, mvpd, split or "test", embodiment, overwrite, on_video=on_video,
+                                            on_start=on_start)]
     except USAGE_ERRORS as error:
         fail(str(error))
-    rejected = f", {len(summary.rejected)} empty (rejected)" if summary.rejected else ""
-    console.print(f"export: {summary.videos} videos, {summary.frames} frames{rejected} -> {summary.split_folder} "
-                  f"in {summary.seconds:.1f} s")
+    for summary in summaries:
+        rejected = f", {len(summary.rejected)} rejected" if summary.rejected else ""
+        console.print(f"export: {summary.videos} videos, {summary.frames} frames{rejected} -> {summary.split_folder} "
+                      f"in {summary.seconds:.1f} s")
 
 
 def import_command(

@@ -36,8 +36,10 @@ from pipeline.io.mvpd.layout import (
     pose_to_mvpd,
     write_json,
 )
+from pipeline.io.mvpd.split_files import empty_videos_file, split_rows_of, zero_shot_file
 from pipeline.io.zarr_video import Video, open_video
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.runtime.run_folder import RunFolder, atomic_write_text
+from pipeline.split.selection import has_split, split_rows
 
 log = logging.getLogger(__name__)
 TRAIN_SPLIT = "train"
@@ -91,6 +93,11 @@ def export_release(run_root: Path, out_root: Path, split: str = "test", embodime
     if paths.folder.exists() and not overwrite:
         raise MvpdExportError(f"{paths.folder}: already exists; delete it or pass --overwrite")
     videos = _video_names(run, chosen)
+    split_rows = split_rows_of(run.root, split) if has_split(run.root) else None
+    if split_rows is not None:  # the split stage decides which videos are in the split and their flags
+        videos = [name for name in videos if name in split_rows]
+        if not videos:
+            raise MvpdExportError(f"{run.root / 'splits'}: no video of embodiment {chosen!r} in split {split!r}")
     categories = _object_categories(run)
     if on_start is not None:
         on_start(len(videos))
@@ -104,12 +111,32 @@ def export_release(run_root: Path, out_root: Path, split: str = "test", embodime
             if on_video is not None:
                 on_video(name)
         _write_split_files(staging, split, exported)
+        if split_rows is not None:
+            rows = [split_rows[v.name] for v in exported]
+            write_json(staging / EMPTY_VIDEOS, empty_videos_file(rows))
+            write_json(staging / ZERO_SHOT, zero_shot_file(run.root, split, rows))
+            atomic_write_text(paths.root / f"{split}.txt", "".join(f"{s}\n" for s in sorted({r["scene_id"] for r in rows})))
         _swap_into_place(staging, paths.folder)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    return ExportSummary(paths.folder, len(exported), sum(len(v.images) for v in exported),
-                         [v.name for v in exported if v.empty], time.monotonic() - started)
+    rejected = ([v.name for v in exported if v.empty] if split_rows is None
+                else [v.name for v in exported if not split_rows[v.name]["accepted"]])
+    return ExportSummary(paths.folder, len(exported), sum(len(v.images) for v in exported), rejected,
+                         time.monotonic() - started)
+
+
+def export_release_splits(run_root: Path, out_root: Path, embodiment: str | None = None, overwrite: bool = False,
+                          on_video: Callable[[str], None] | None = None,
+                          on_start: Callable[[int], None] | None = None) -> list[ExportSummary]:
+    """Every split of a run with a split stage (train, val, test), each as `export_release` writes one."""
+    from pipeline.config import SPLIT_NAMES
+
+    names = sorted({r["split"] for r in split_rows(run_root)}, key=SPLIT_NAMES.index)
+    if not names:
+        raise MvpdExportError(f"{run_root}: the run has no split stage output; give --split NAME to export every "
+                              "video as one split")
+    return [export_release(run_root, out_root, name, embodiment, overwrite, on_video, on_start) for name in names]
 
 
 def _choose_embodiment(run: RunFolder, requested: str | None) -> str:

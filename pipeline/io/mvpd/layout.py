@@ -129,11 +129,12 @@ def object_id_to_color(object_id: int) -> list[int]:
 
 
 def mvpd_categories() -> list[dict[str, Any]]:
-    """The `categories` list of a panoptic JSON: mpcat40 1..40; wall, floor and ceiling are stuff."""
+    """The `categories` list of a panoptic JSON: mpcat40 1..40 (41 `unlabeled` is left out, as the authors'
+    builder stops at 40); wall, floor and ceiling are stuff."""
     return [
         {"id": c.index, "name": c.name, "isthing": 0 if c.index in STUFF_CATEGORIES else 1, "color": list(c.rgb)}
         for index, c in sorted(categories().items())
-        if index > 0
+        if 0 < index <= 40
     ]
 
 
