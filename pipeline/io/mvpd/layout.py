@@ -18,6 +18,7 @@ from pipeline.scenes.categories import STUFF_CATEGORIES, categories
 
 # MVPd's camera (DESIGN.md): 640 x 480, 69 degrees horizontal field of view; imports keep the files' size.
 MVPD_HFOV_DEGREES = 69.0
+MVPD_FX = 465.6029  # the focal length the authors' loader hard-codes (fx = fy; cx = 320, cy = 240)
 # The MVPd rule for empty videos: any frame with more than this fraction of void pixels.
 EMPTY_VOID_FRACTION = 0.5
 # Fixed JPEG settings so that two exports of the same run are byte-identical.
