@@ -145,3 +145,25 @@ def test_exported_split_files_load_back_to_the_same_flags(run: RunFolder, tmp_pa
         assert {n: tuple(r[k] for k in keys) for n, r in again.items()} == {n: tuple(r[k] for k in keys) for n, r in ours.items()}
         if split != "train":
             assert zero_shot_objects(back.run_root) == {o for o in zero_shot_objects(run) if o[0] in scenes}
+
+
+def test_stats_have_per_split_rows_the_comparison_row_and_the_cluster_histogram(run: RunFolder, tmp_path: Path) -> None:
+    from pipeline.io.dataset_stats import dataset_stats
+
+    found = dataset_stats(run)
+    rows = split_rows(run)
+    by_split = {r["split"]: r for r in found.per_split}
+    assert list(by_split) == ["train", "val", "test"]
+    for name, row in by_split.items():
+        mine = [r for r in rows if r["split"] == name]
+        assert (row["videos"], row["rejected_empty"], row["rejected_zero_shot"], row["accepted"]) == (
+            len(mine), sum(r["empty"] for r in mine), sum(r["zero_shot_rejected"] for r in mine), sum(r["accepted"] for r in mine))
+    assert sum(int(r["frames"]) for r in found.per_split) == found.comparison["images"] == sum(
+        run.read("videos").column("frames").to_pylist())
+    assert found.comparison["sensor_placement_control"] == "yes" and found.comparison["unseen_split"] == "yes"
+    assert len(found.clusters) == 3 and sum(c["unseen"] for c in found.clusters) == 1
+    result = invoke("stats", run.root, "--out", tmp_path / "stats.png")
+    assert result.exit_code == 0 and "rejected zero-shot" in result.output and "sensor placement control" in result.output
+    from PIL import Image
+
+    assert Image.open(tmp_path / "stats.png").size[1] > Image.open(tmp_path / "stats.png").size[0] * 0.8  # three panel rows
