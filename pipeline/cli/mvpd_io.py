@@ -64,6 +64,8 @@ def export_command(
                                             on_start=on_start)]
     except USAGE_ERRORS as error:
         fail(str(error))
+    for warning in dict.fromkeys(w for summary in summaries for w in summary.warnings):
+        console.print(f"[yellow]warning:[/] {warning}", soft_wrap=True)
     for summary in summaries:
         rejected = f", {len(summary.rejected)} rejected" if summary.rejected else ""
         console.print(f"export: {summary.videos} videos, {summary.frames} frames{rejected} -> {summary.split_folder} "

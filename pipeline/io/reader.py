@@ -219,9 +219,9 @@ def _torch_dataset_class() -> type:
         """Clips of a run as torch tensors: rgb (T, 3, H, W) uint8, depth (T, H, W) int32 mm, panoptic (T, H, W) int64."""
 
         def __init__(self, run: Any, clip_len: int, stride: int | None = None,
-                     videos: Sequence[tuple[str, str]] | None = None):
+                     videos: Sequence[tuple[str, str]] | None = None, split: str | None = None):
             self.run = _run_root(run)
-            self.index = clip_index(self.run, clip_len, stride, videos)
+            self.index = clip_index(self.run, clip_len, stride, videos, split)
             self.clip_len = clip_len
 
         def __len__(self) -> int:

@@ -116,9 +116,13 @@ def test_reader_skips_videos_outside_the_split_or_rejected(run: RunFolder) -> No
 
 
 def test_exported_split_files_load_back_to_the_same_flags(run: RunFolder, tmp_path: Path) -> None:
-    summaries = export_release_splits(run.root, tmp_path / "MVPd")
-    assert [s.split_folder.name for s in summaries] == ["train", "val", "test"]
     root = tmp_path / "MVPd"
+    result = invoke("export", run.root, "--mvpd", root)  # two embodiments: ambient + its 20 W copy
+    assert result.exit_code == 0, result.output
+    assert result.output.count("export:") == 3 and sorted(p.name for p in root.iterdir()) == [
+        "test", "test.txt", "train", "train.txt", "val", "val.txt"]
+    assert result.output.count("warning:") == 1  # camera not MVPd's 640x480 / 69 degrees: the authors' loader hard-codes it
+    assert export_release_splits(run.root, tmp_path / "again")[0].warnings
     for split in ("train", "val", "test"):
         ours = {r["video_name"]: r for r in split_rows(run) if r["split"] == split and r["embodiment"] == "ambient"}
         empty = json.loads((root / split / "empty_videos.json").read_text())
