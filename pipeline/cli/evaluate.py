@@ -64,7 +64,7 @@ def register(app: typer.Typer) -> None:
                     result.split = split
                 else:
                     assert run is not None
-                    if not has_split(run):
+                    if (run / "job.yaml").is_file() and not has_split(run):
                         console.print(f"{run}: no split stage in this run; scoring every video (zero-shot bucket empty)")
                     result = evaluate_run(run, pred, embodiment, split=split, **common)  # type: ignore[arg-type]
         except (EvaluationInputError, ProtocolError, ConfigError, RunFolderError, RunLockedError, StageOrderError) as error:
