@@ -244,3 +244,15 @@ def test_minilm_encoder_groups_spellings_of_one_kind() -> None:
     labels = ZeroShotSplitter(ZeroShotConfig(encoder="minilm", clusters=3), MiniLmEncoder()).cluster(names)
     groups = {kind: {int(label) for name, label in zip(names, labels) if name.endswith(kind)} for kind in ("towel", "clock", "basket")}
     assert all(len(g) == 1 for g in groups.values()) and len(set.union(*groups.values())) == 3
+
+
+def test_hm3d_numbering_trains_below_800_and_halves_the_pool_per_stratum() -> None:
+    """MVPd's split: HM3D's training scenes train; the validation pool is halved separately among scenes
+    with and without zero-shot objects (4 -> 2 + 2, 2 -> 1 + 1)."""
+    train = [f"{i:05d}-T" for i in range(10)]
+    pool = [f"{800 + i:05d}-V" for i in range(6)]
+    with_zero_shot = set(pool[:4])
+    assignment = assign_scenes(train + pool, SceneSplitConfig(), 0, with_zero_shot)  # mode auto -> hm3d
+    assert all(assignment[s] == "train" for s in train)
+    for stratum in (with_zero_shot, set(pool) - with_zero_shot):
+        assert sorted(assignment[s] for s in stratum) == ["test"] * (len(stratum) - len(stratum) // 2) + ["val"] * (len(stratum) // 2)
