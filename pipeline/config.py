@@ -60,10 +60,14 @@ class Hm3dSemSource(Strict):
 
 
 class MeshFolderSource(Strict):
-    """Plain mesh files (OBJ / PLY / GLB) with per-face or per-vertex instance labels."""
+    """Mesh files trimesh reads (OBJ + MTL, PLY, GLB / glTF, STL, OFF); labels chosen by `labels`."""
 
     root: Path = Field(description="folder of mesh files")
-    pattern: str = Field("*.glb", description="glob of the files to use, relative to root")
+    pattern: str = Field("*", description="glob of the files to use, relative to root; only mesh suffixes "
+                         "(.obj .ply .glb .gltf .stl .off) are read, so the default takes every mesh")
+    labels: Literal["auto", "sidecar", "properties", "names", "components"] = Field(
+        "auto", description="what labels the faces: a JSON sidecar, label properties, group / material / node "
+        "names, or connected components; auto takes the first the file supports, in that order")
     up_axis: Literal["y", "z"] = Field("y", description="up axis of the files")
 
 
