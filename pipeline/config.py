@@ -191,12 +191,18 @@ class PlanConfig(Strict):
     trajectories_per_scene: int = Field(50, ge=1)
     min_frames: int = Field(100, ge=2)
     max_frames: int = Field(600, ge=2)
-    max_step: float = Field(0.05, gt=0, description="metres per frame along a straight move")
+    max_step: float = Field(0.05, gt=0, description="metres per frame along a straight move, in 3D (floor changes "
+                            "under the move count: a rug edge or a stair makes the camera ramp over more frames)")
     max_turn: float = Field(0.5, gt=0, description="degrees per frame when turning in place")
     grid_resolution: float = Field(0.05, gt=0, description="metres per cell of the navigable-area grid")
     max_attempts: int = Field(2000, ge=1, description="start/goal draws per scene before giving up")
     require_ceiling: bool = Field(True, description="floors need a surface above them (keeps robots off roofs); "
                                                     "turn off for scans with holes in their ceilings")
+    reachable_only: bool = Field(True, description="paths only on the floor a robot put down at the building's "
+                                 "entrance level could reach (the largest ground-level island, the storeys its stairs "
+                                 "reach, and other islands at that level); false: every walkable island, roofs and "
+                                 "furniture tops included")
+    min_island_area: float = Field(1.0, ge=0, description="square metres; smaller islands get no paths")
 
     @model_validator(mode="after")
     def _frames_ordered(self) -> "PlanConfig":
