@@ -28,237 +28,20 @@ from __future__ import annotations
 import json
 import logging
 import re
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.scenes.categories import categories, category_of
-from pipeline.scenes.glb import MAGIC, SUPPORTED_EXTENSIONS, name_label
+from pipeline.scenes.glb import name_label
 from pipeline.scenes.hm3dsem import to_world, up_axis_transform
 from pipeline.scenes.scene import Scene, SceneError, SceneObject
+from pipeline.scenes.trimesh_reader import MESH_SUFFIXES, MeshPart, read_parts
 
 LOG = logging.getLogger(__name__)
 
-MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
 LABEL_MODES = ("auto", "sidecar", "properties", "names", "components")
-LABEL_PROPERTIES = ("object_id", "instance", "label", "segment")
 MISC_CATEGORY = next((c.index for c in categories().values() if c.name == "misc"), 0)
-# Required glTF extensions trimesh decodes (or that change nothing we read).
-GLTF_EXTENSIONS = SUPPORTED_EXTENSIONS | {"KHR_texture_transform", "KHR_materials_pbrSpecularGlossiness"}
-
-
-@dataclass
-class MeshPart:
-    """One placed geometry of the file, in the file's frame (node transform applied).
-
-    Attributes:
-        name: the OBJ material or the glTF node name ("" for a single unnamed mesh).
-        vertices: (V, 3) float64 positions.
-        faces: (F, 3) int64 triangles.
-        face_labels: (F,) int64 label property per face, or None.
-        face_groups: the OBJ `o` / `g` name of each face, or None.
-        vertex_colors: (V, 3) uint8, or None.
-        base_color: (3,) uint8 material colour, or None.
-        texture: (H, W, 3) uint8 image with `uvs` ((V, 2), v up), or None.
-    """
-
-    name: str
-    vertices: np.ndarray
-    faces: np.ndarray
-    face_labels: np.ndarray | None = None
-    face_groups: list[str] | None = None
-    vertex_colors: np.ndarray | None = None
-    base_color: np.ndarray | None = None
-    texture: np.ndarray | None = None
-    uvs: np.ndarray | None = None
-
-    @property
-    def coloured(self) -> bool:
-        return self.vertex_colors is not None or self.base_color is not None or self.texture is not None
-
-
-# ------------------------------------------------------------------------------------------ reading
-
-
-def _load_trimesh(path: Path):  # noqa: ANN202 - trimesh.Scene, imported lazily (trimesh is slow to import)
-    import trimesh
-
-    if path.suffix.lower() in (".glb", ".gltf"):
-        _check_gltf_extensions(path)
-    try:
-        # One geometry per material keeps OBJ `usemtl` groups apart; process=False keeps vertex order.
-        return trimesh.load_scene(str(path), process=False)
-    except (ValueError, KeyError, IndexError, TypeError, AttributeError, UnicodeDecodeError, OSError) as error:
-        where = _first_bad_obj_line(path) if path.suffix.lower() == ".obj" else None
-        if where is not None:
-            raise SceneError(f"{path}:{where[0]}: cannot read {where[1]!r} line; fix the line") from None
-        raise SceneError(f"{path}: trimesh cannot read the mesh ({type(error).__name__}: {error}); re-export the file") from None
-
-
-def _check_gltf_extensions(path: Path) -> None:
-    """Refuse glTF files that need an extension trimesh does not decode (it would read them as empty)."""
-    if path.suffix.lower() == ".glb":
-        with path.open("rb") as handle:
-            head = handle.read(20)
-            if len(head) < 20 or head[:4] != MAGIC:
-                raise SceneError(f"{path}: corrupt GLB (no glTF header); re-export or re-download the file")
-            document_bytes = handle.read(int.from_bytes(head[12:16], "little"))
-    else:
-        document_bytes = path.read_bytes()
-    try:
-        required = json.loads(document_bytes.decode("utf-8")).get("extensionsRequired", [])
-    except (UnicodeDecodeError, json.JSONDecodeError, AttributeError) as error:
-        raise SceneError(f"{path}: corrupt glTF JSON ({error}); re-export the file") from None
-    unsupported = sorted(set(required) - GLTF_EXTENSIONS)
-    if unsupported:
-        raise SceneError(f"{path}: needs glTF extension {', '.join(unsupported)}, which the reader does not decode; "
-                         "re-export without it")
-
-
-def _first_bad_obj_line(path: Path) -> tuple[int, str] | None:
-    """(line number, keyword) of the first `v` / `vt` / `vn` line whose numbers do not parse."""
-    with path.open(encoding="utf-8", errors="replace") as handle:
-        for number, line in enumerate(handle, start=1):
-            fields = line.split()
-            if fields and fields[0] in ("v", "vt", "vn"):
-                try:
-                    [float(x) for x in fields[1:]]
-                except ValueError:
-                    return number, fields[0]
-    return None
-
-
-def _image_rgb(image: object) -> np.ndarray | None:
-    if image is None:
-        return None
-    return np.asarray(image.convert("RGB"), np.uint8)  # type: ignore[attr-defined]
-
-
-def _appearance(geometry: object) -> dict:
-    """Colour fields of one trimesh geometry: vertex colours, a texture with UVs, or a base colour."""
-    visual = geometry.visual  # type: ignore[attr-defined]
-    kind = getattr(visual, "kind", None)
-    if kind == "vertex":
-        return {"vertex_colors": np.asarray(visual.vertex_colors)[:, :3].astype(np.uint8)}
-    if kind == "face":
-        # Per-face colours: each face's colour on its corners (shared corners take one of them).
-        colors = np.zeros((len(geometry.vertices), 3), np.uint8)  # type: ignore[attr-defined]
-        colors[geometry.faces.reshape(-1)] = np.repeat(np.asarray(visual.face_colors)[:, :3], 3, axis=0)  # type: ignore[attr-defined]
-        return {"vertex_colors": colors}
-    material = getattr(visual, "material", None)
-    if material is None:
-        return {}
-    image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
-    uv = getattr(visual, "uv", None)
-    if image is not None and uv is not None and len(uv) == len(geometry.vertices):  # type: ignore[attr-defined]
-        return {"texture": _image_rgb(image), "uvs": np.asarray(uv, np.float32)[:, :2]}
-    factor = getattr(material, "baseColorFactor", None)
-    if factor is None:
-        factor = getattr(material, "diffuse", None)
-    return {"base_color": np.asarray(factor, np.uint8)[:3]} if factor is not None else {}
-
-
-def _ply_labels(geometry: object) -> np.ndarray | None:
-    """Per-face labels from a PLY face (or vertex) label property, or None."""
-    raw = getattr(geometry, "metadata", {}).get("_ply_raw")
-    if not raw:
-        return None
-    faces = np.asarray(geometry.faces)  # type: ignore[attr-defined]
-    face_data, vertex_data = raw.get("face", {}).get("data", {}), raw.get("vertex", {}).get("data", {})
-    face_key = next((k for k in LABEL_PROPERTIES if k in face_data), None)
-    if face_key is not None:
-        per_polygon = np.asarray(face_data[face_key]).reshape(-1).astype(np.int64)
-        if len(per_polygon) == len(faces):
-            return per_polygon
-        sizes = np.array([len(c) for c in face_data["vertex_indices"]])
-        return np.repeat(per_polygon, np.maximum(sizes - 2, 0))
-    vertex_key = next((k for k in LABEL_PROPERTIES if k in vertex_data), None)
-    if vertex_key is not None:
-        return np.asarray(vertex_data[vertex_key]).reshape(-1).astype(np.int64)[faces[:, 0]]
-    return None
-
-
-def _attribute_labels(geometry: object) -> np.ndarray | None:
-    """Per-face labels from a glTF `_OBJECT_ID` (or `object_id`) vertex attribute, or None."""
-    attributes = getattr(geometry, "vertex_attributes", {}) or {}
-    key = next((k for k in ("_OBJECT_ID", "_object_id", "object_id") if k in attributes), None)
-    if key is None:
-        return None
-    per_vertex = np.asarray(attributes[key]).reshape(len(attributes[key]), -1)[:, 0]
-    return np.rint(per_vertex).astype(np.int64)[np.asarray(geometry.faces)[:, 0]]  # type: ignore[attr-defined]
-
-
-@dataclass
-class ObjFaces:
-    """What trimesh does not keep of an OBJ: each triangle's `o` / `g` name, per material, in file order."""
-
-    groups: dict[str, list[str]]
-    short_faces: int  # `f` lines with fewer than 3 corners (trimesh drops them)
-    any_group: bool
-
-
-def _scan_obj_faces(path: Path) -> ObjFaces:
-    """Each triangle's group name, in the order trimesh emits them (per material, then file order)."""
-    groups: dict[str, list[str]] = {}
-    group, material, short, any_group = "", "", 0, False
-    with path.open(encoding="utf-8", errors="replace") as handle:
-        for line in handle:
-            head = line[:7]
-            if head.startswith(("f ", "f\t")):
-                corners = len(line.split()) - 1
-                if corners < 3:
-                    short += 1
-                else:
-                    groups.setdefault(material, []).extend([group] * (corners - 2))
-            elif head.startswith(("o ", "g ", "o\t", "g\t")):
-                group, any_group = line[2:].strip(), True
-            elif head.startswith("usemtl"):
-                material = line[6:].strip()
-    return ObjFaces(groups, short, any_group)
-
-
-def read_parts(path: Path) -> tuple[list[MeshPart], int]:
-    """Every placed geometry of a mesh file (file frame) and the count of faces with < 3 corners."""
-    scene = _load_trimesh(path)
-    obj = _scan_obj_faces(path) if path.suffix.lower() == ".obj" else None
-    parts = []
-    for node in scene.graph.nodes_geometry:
-        matrix, geometry_name = scene.graph[node]
-        geometry = scene.geometry[geometry_name]
-        if not hasattr(geometry, "faces") or len(geometry.faces) == 0:
-            continue  # point clouds and lines carry no surface
-        vertices = np.asarray(geometry.vertices, np.float64)
-        if not np.array_equal(matrix, np.eye(4)):
-            vertices = vertices @ np.asarray(matrix)[:3, :3].T + np.asarray(matrix)[:3, 3]
-        faces = np.asarray(geometry.faces, np.int64)
-        labels = _ply_labels(geometry)
-        labels = labels if labels is not None else _attribute_labels(geometry)
-        name = _part_name(path, geometry, str(node), obj)
-        part = MeshPart(name, vertices, faces, face_labels=labels, **_appearance(geometry))
-        if obj is not None and obj.any_group:
-            part.face_groups = _obj_groups_of(path, obj, geometry, len(faces))
-        parts.append(part)
-    if not parts:
-        raise SceneError(f"{path}: the mesh is empty (0 triangles); check the file was exported with geometry")
-    return parts, (obj.short_faces if obj is not None else 0)
-
-
-def _part_name(path: Path, geometry: object, node: str, obj: ObjFaces | None) -> str:
-    """The name a part carries: its OBJ material, its glTF node; "" for single-mesh formats."""
-    if obj is not None:
-        material = getattr(getattr(geometry.visual, "material", None), "name", None)  # type: ignore[attr-defined]
-        return str(material) if material and obj.groups.keys() - {""} else ""
-    return node if path.suffix.lower() in (".glb", ".gltf") else ""
-
-
-def _obj_groups_of(path: Path, obj: ObjFaces, geometry: object, count: int) -> list[str]:
-    material = getattr(getattr(geometry.visual, "material", None), "name", None) or ""  # type: ignore[attr-defined]
-    groups = obj.groups.get(str(material)) if len(obj.groups) > 1 else next(iter(obj.groups.values()), [])
-    if groups is None or len(groups) != count:
-        raise SceneError(f"{path}: {count} triangles of material {material!r} but {len(groups or [])} `f` corners "
-                         "in its groups; re-export the OBJ with triangles or use labels: names")
-    return groups
 
 
 # ------------------------------------------------------------------------------------------- labels
@@ -287,14 +70,19 @@ def _name_category(name: str) -> int:
     return category_of(base) or category_of(name) or MISC_CATEGORY
 
 
-def _face_names(parts: list[MeshPart]) -> list[str]:
-    """Each face's name: its OBJ group when the groups name at least two, else its part's name."""
+def face_names(parts: list[MeshPart]) -> tuple[list[str], np.ndarray]:
+    """Distinct names and each face's index into them: its OBJ group when the groups name at least two,
+    else its part's name. Per part, not per face, where possible (a scan has millions of faces)."""
     groups = {g for p in parts for g in (p.face_groups or [])}
     use_groups = len(groups - {""}) >= 2
-    names: list[str] = []
+    index = {name: k for k, name in enumerate(sorted(groups))} if use_groups else {}
+    blocks = []
     for part in parts:
-        names.extend(part.face_groups if use_groups and part.face_groups is not None else [part.name] * len(part.faces))
-    return names
+        if use_groups and part.face_groups is not None:
+            blocks.append(np.array([index[g] for g in part.face_groups], np.int64))
+        else:
+            blocks.append(np.full(len(part.faces), index.setdefault(part.name, len(index)), np.int64))
+    return list(index), np.concatenate(blocks)
 
 
 def choose_labels(parts: list[MeshPart], path: Path, mode: str) -> str:
@@ -305,7 +93,7 @@ def choose_labels(parts: list[MeshPart], path: Path, mode: str) -> str:
         return "sidecar"
     if all(p.face_labels is not None for p in parts):
         return "properties"
-    if any(_face_names(parts)):
+    if any(face_names(parts)[0]):
         return "names"
     return "components"
 
@@ -315,7 +103,8 @@ def _labels_sidecar(parts: list[MeshPart], path: Path) -> tuple[np.ndarray, dict
     if all(p.face_labels is not None for p in parts):
         labels = np.concatenate([p.face_labels for p in parts])  # type: ignore[misc]
     else:
-        labels = np.array([name_label(n) for n in _face_names(parts)], np.int64)
+        names, which = face_names(parts)
+        labels = np.array([name_label(n) for n in names], np.int64)[which]
     listed = np.isin(labels, np.array(sorted(objects), dtype=np.int64)) & (labels > 0)
     unknown = len(np.unique(labels[~listed & (labels > 0)]))
     return np.where(listed, labels, 0), objects, unknown
@@ -331,12 +120,12 @@ def _labels_properties(parts: list[MeshPart], path: Path) -> tuple[np.ndarray, d
 
 
 def _labels_names(parts: list[MeshPart], path: Path) -> tuple[np.ndarray, dict[int, SceneObject], int]:
-    names = _face_names(parts)
-    distinct = sorted({n for n in names if n})
-    if not distinct:
+    names, which = face_names(parts)
+    if not any(names):
         raise SceneError(f"{path}: labels: names, but the file names no group, material or node; use labels: components")
-    ids = {name: index for index, name in enumerate(distinct, start=1)}
-    labels = np.array([ids.get(n, 0) for n in names], np.int64)
+    # Object ids 1..N in name order; an empty name (faces outside any group) is void.
+    ids = {name: k for k, name in enumerate(sorted(n for n in names if n), start=1)}
+    labels = np.array([ids.get(n, 0) for n in names], np.int64)[which]
     objects = {i: SceneObject(i, name, _name_category(name)) for name, i in ids.items()}
     return labels, objects, 0
 
@@ -465,9 +254,12 @@ def read_labelled_mesh(path: Path, up_axis: str = "y", labels: str = "auto") -> 
 
 
 def _non_degenerate(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(F,) True for faces with three distinct corners and non-zero area."""
-    v = vertices.astype(np.float64)
-    a, b, c = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
-    area = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    """(F,) True for faces with three distinct corners and non-zero area (float64 cross product)."""
     distinct = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    return distinct & (area > 0)
+    a = vertices[faces[:, 0]].astype(np.float64)
+    first, second = vertices[faces[:, 1]] - a, vertices[faces[:, 2]] - a
+    # The cross product is zero exactly when the area is; its components are compared, no norm needed.
+    area = first[:, 1] * second[:, 2] != first[:, 2] * second[:, 1]
+    area |= first[:, 2] * second[:, 0] != first[:, 0] * second[:, 2]
+    area |= first[:, 0] * second[:, 1] != first[:, 1] * second[:, 0]
+    return distinct & area
