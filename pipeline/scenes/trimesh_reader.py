@@ -11,6 +11,7 @@ Anything unreadable raises SceneError naming the file (and the OBJ line where on
 from __future__ import annotations
 
 import json
+import logging
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.scenes.scene import SceneError
+
+LOG = logging.getLogger(__name__)
 
 MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
 LABEL_PROPERTIES = ("object_id", "instance", "label", "segment")
@@ -252,10 +255,13 @@ def _part_name(path: Path, geometry: object, node: str, obj: ObjFaces | None) ->
     return node if path.suffix.lower() in (".glb", ".gltf") else ""
 
 
-def _obj_groups_of(path: Path, obj: ObjFaces, geometry: object, count: int) -> list[str]:
+def _obj_groups_of(path: Path, obj: ObjFaces, geometry: object, count: int) -> list[str] | None:
+    """The `o` / `g` name of each triangle trimesh gave for one material, or None (with a warning) when
+    the file's `f` lines do not give the same number of triangles (then material names label it)."""
     material = getattr(getattr(geometry.visual, "material", None), "name", None) or ""  # type: ignore[attr-defined]
     groups = obj.groups.get(str(material)) if len(obj.groups) > 1 else next(iter(obj.groups.values()), [])
     if groups is None or len(groups) != count:
-        raise SceneError(f"{path}: {count} triangles of material {material!r} but {len(groups or [])} `f` corners "
-                         "in its groups; re-export the OBJ with triangles or use labels: names")
+        LOG.warning("%s: material %r has %d triangles but its `f` lines give %d; its `o` / `g` names are ignored",
+                    path, material, count, len(groups or []))
+        return None
     return groups
