@@ -135,3 +135,15 @@ def test_unknown_labels_option_is_refused(tmp_path: Path) -> None:
     path, _ = write_obj_with_degenerate_faces(tmp_path)
     with pytest.raises(SceneError, match="labels 'colour'"):
         read_labelled_mesh(path, labels="colour")
+
+
+def test_gltf_object_id_attribute_labels_faces(tmp_path: Path) -> None:
+    import trimesh
+
+    mesh = trimesh.Trimesh(QUAD, np.array([[0, 1, 2], [1, 3, 2]]), process=False)
+    mesh.vertex_attributes["_OBJECT_ID"] = np.array([5, 9, 5, 9], np.float32)  # faces start at vertices 0 and 1
+    path = tmp_path / "labelled.glb"
+    path.write_bytes(mesh.export(file_type="glb"))
+    scene = load_scene_file(path)
+    assert scene.face_object_ids.tolist() == [5, 9]  # a face takes its first corner's label
+    assert {o.raw_name for o in scene.objects.values()} == {"object_5", "object_9"}
