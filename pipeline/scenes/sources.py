@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from pipeline.config import Hm3dSemSource, MeshFolderSource, ProceduralSource, SceneSources
-from pipeline.scenes.meshes import MESH_SUFFIXES
+from pipeline.scenes.trimesh_reader import MESH_SUFFIXES
 from pipeline.scenes.procedural import procedural_scene_id
 from pipeline.scenes.scene import Scene, SceneError, SceneRef
 
