@@ -60,10 +60,14 @@ class Hm3dSemSource(Strict):
 
 
 class MeshFolderSource(Strict):
-    """Plain mesh files (OBJ / PLY / GLB) with per-face or per-vertex instance labels."""
+    """Mesh files trimesh reads (OBJ + MTL, PLY, GLB / glTF, STL, OFF); labels chosen by `labels`."""
 
     root: Path = Field(description="folder of mesh files")
-    pattern: str = Field("*.glb", description="glob of the files to use, relative to root")
+    pattern: str = Field("*", description="glob of the files to use, relative to root; only mesh suffixes "
+                         "(.obj .ply .glb .gltf .stl .off) are read, so the default takes every mesh")
+    labels: Literal["auto", "sidecar", "properties", "names", "components"] = Field(
+        "auto", description="what labels the faces: a JSON sidecar, label properties, group / material / node "
+        "names, or connected components; auto takes the first the file supports, in that order")
     up_axis: Literal["y", "z"] = Field("y", description="up axis of the files")
 
 
@@ -187,12 +191,18 @@ class PlanConfig(Strict):
     trajectories_per_scene: int = Field(50, ge=1)
     min_frames: int = Field(100, ge=2)
     max_frames: int = Field(600, ge=2)
-    max_step: float = Field(0.05, gt=0, description="metres per frame along a straight move")
+    max_step: float = Field(0.05, gt=0, description="metres per frame along a straight move, in 3D (floor changes "
+                            "under the move count: a rug edge or a stair makes the camera ramp over more frames)")
     max_turn: float = Field(0.5, gt=0, description="degrees per frame when turning in place")
     grid_resolution: float = Field(0.05, gt=0, description="metres per cell of the navigable-area grid")
     max_attempts: int = Field(2000, ge=1, description="start/goal draws per scene before giving up")
     require_ceiling: bool = Field(True, description="floors need a surface above them (keeps robots off roofs); "
                                                     "turn off for scans with holes in their ceilings")
+    reachable_only: bool = Field(True, description="paths only on the floor a robot put down at the building's "
+                                 "entrance level could reach (the largest ground-level island, the storeys its stairs "
+                                 "reach, and other islands at that level); false: every walkable island, roofs and "
+                                 "furniture tops included")
+    min_island_area: float = Field(1.0, ge=0, description="square metres; smaller islands get no paths")
 
     @model_validator(mode="after")
     def _frames_ordered(self) -> "PlanConfig":
