@@ -200,6 +200,8 @@ def _checked_splits(run: RunFolder, splits: Mapping[str, Sequence[VideoKey]],
     """The videos to export per split, restricted to the chosen embodiment; every name checked."""
     if options.every < 1:
         raise TrainingExportError(f"--every {options.every}: the frame step must be at least 1")
+    if options.categories not in ("agnostic", "mpcat40"):
+        raise TrainingExportError(f"--categories {options.categories}: choose agnostic or mpcat40")
     stored = set(list_videos(run))
     if options.embodiment is not None and options.embodiment not in {e for e, _ in stored}:
         known = sorted({e for e, _ in stored})

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -192,3 +193,24 @@ def test_a_failed_export_leaves_no_temporary_file(tiny_run: RunFolder, tmp_path:
     with pytest.raises(OSError, match="disk full"):
         export_training_data(tiny_run.root, tmp_path / "out", unsplit(tiny_run.root), CocoExporter, ExportOptions())
     assert [p for p in (tmp_path / "out").rglob("*") if p.is_file()] == []
+
+
+def test_cli_exports_the_split_stages_splits(tiny_run: RunFolder, tmp_path: Path,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """Stands in for `pipeline.split.selection` (the split stage, built elsewhere) with a fixed answer."""
+    import types
+
+    answers = {"train": [("ambient", "room.0000000000.0000001000")], "val": [("ambient", "room.0000000000.0000000100")],
+               "test": []}
+    selection = types.ModuleType("pipeline.split.selection")
+    selection.accepted_videos = lambda run, split: answers[split]  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "pipeline.split.selection", selection)
+    out = tmp_path / "coco"
+    result = cli(str(tiny_run.root), "--coco", str(out), "--every", "6")
+    assert result.exit_code == 0, result.output
+    assert "no split" not in result.output and "train 1, val 1, test 0" in result.output
+    assert sorted(p.name for p in (out / "annotations").iterdir()) == [
+        "instances_test.json", "instances_train.json", "instances_val.json"]
+    val = json.loads(annotation_file(out, "val").read_text())
+    assert [i["file_name"] for i in val["images"]] == ["ambient.room.0000000000.0000000100.0000000000.jpg"]
+    assert json.loads(annotation_file(out, "test").read_text())["images"] == []
