@@ -5,9 +5,9 @@ A run of the test room (tests/render/tiny_scenes.py: a room with furniture, 7-9 
 rendered at MVPd's 640x480, two lights, both heights, 6 frames each (24 frames). Each export runs
 `--repeats` times into a fresh folder, taking turns with the peer. The peer, in the same process and on
 the same frames, reads every frame's RGB and panoptic arrays and finds its objects without writing
-anything, so the ratio export / walk is the cost of the format itself (JPEG encoding, RLE or contour tracing, JSON or text). Medians and spreads go to
-benchmarks/results/exports.json; from the export rate, the hours one core needs for MVPd's 6.06 M frames
-(or a tenth of them with `--every 10`).
+anything, so the ratio export / walk is the cost of the format itself (JPEG encoding, RLE or contour
+tracing, JSON or text). Medians and spreads go to benchmarks/results/exports.json; from the export rate,
+the hours one core needs for MVPd's 6.06 M frames (or a tenth of them with `--every 10`).
 """
 
 from __future__ import annotations
