@@ -45,15 +45,20 @@ def _video_progress(label: str) -> Iterator[tuple[Callable[[int], None], Callabl
 
 def export_command(
     run_dir: Annotated[Path, typer.Argument(help="run folder to export")],
-    mvpd: Annotated[Optional[Path], typer.Option("--mvpd", help="MVPd root to write; the split folder goes inside it")] = None,
+    mvpd: Annotated[Optional[Path],
+                    typer.Option("--mvpd", help="MVPd root to write; the split folder goes inside it")] = None,
     split: Annotated[str, typer.Option(help="split name (every video goes in it until a split stage exists)")] = "test",
     embodiment: Annotated[Optional[str], typer.Option(help="embodiment to export (if the job has several)")] = None,
-    overwrite: Annotated[bool, typer.Option("--overwrite", help="replace an existing export (<mvpd>/<split>, or the --coco/--yolo files)")] = False,
-    coco: Annotated[Optional[Path], typer.Option("--coco", help="write COCO instance segmentation here instead")] = None,
-    yolo: Annotated[Optional[Path], typer.Option("--yolo", help="write the ultralytics YOLO-seg layout here instead")] = None,
+    overwrite: Annotated[bool, typer.Option(
+        "--overwrite", help="replace an existing export (<mvpd>/<split>, or the --coco/--yolo files)")] = False,
+    coco: Annotated[Optional[Path],
+                    typer.Option("--coco", help="write COCO instance segmentation here instead")] = None,
+    yolo: Annotated[Optional[Path],
+                    typer.Option("--yolo", help="write the ultralytics YOLO-seg layout here instead")] = None,
     every: Annotated[int, typer.Option(help="--coco/--yolo: keep every n-th frame of each video")] = 1,
     categories: Annotated[str, typer.Option(help="--coco/--yolo: agnostic (one class) or mpcat40")] = "agnostic",
-    drop_stuff: Annotated[bool, typer.Option("--drop-stuff", help="--coco/--yolo: leave out wall, floor, ceiling")] = False,
+    drop_stuff: Annotated[bool,
+                          typer.Option("--drop-stuff", help="--coco/--yolo: leave out wall, floor, ceiling")] = False,
 ) -> None:
     """Write a run's videos as an MVPd release split (JPEG colour, uint16 depth PNG, COCO panoptic PNG, JSON),
     or as training data: COCO instance segmentation (--coco) or the ultralytics YOLO layout (--yolo)."""
@@ -77,7 +82,8 @@ def _training_export(run_dir: Path, coco: Optional[Path], yolo: Optional[Path], 
     """`export --coco OUT` / `--yolo OUT`: every split of the run (or all videos as `all`) as training data."""
     from pipeline.cli.console import console, fail
     from pipeline.io.coco import CocoExporter
-    from pipeline.io.training_export import ExportOptions, TrainingExportError, export_training_data, run_splits, unsplit
+    from pipeline.io.training_export import (ExportOptions, TrainingExportError, export_training_data, run_splits,
+                                             unsplit)
     from pipeline.io.yolo import YoloExporter
 
     if sum(target is not None for target in (mvpd, coco, yolo)) != 1:

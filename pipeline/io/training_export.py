@@ -212,7 +212,8 @@ def _checked_splits(run: RunFolder, splits: Mapping[str, Sequence[VideoKey]],
         for key in videos:
             if tuple(key) not in stored:
                 raise TrainingExportError(f"{run.root}: split {split!r} lists video {key[1]!r} of embodiment "
-                                          f"{key[0]!r}, which the run's videos table does not hold; rerun the split stage")
+                                          f"{key[0]!r}, which the run's videos table does not hold; "
+                                          "rerun the split stage")
         chosen[split] = [tuple(k) for k in videos if options.embodiment in (None, k[0])]  # type: ignore[misc]
     if not any(chosen.values()):
         raise TrainingExportError(f"{run.root}: no videos to export; run the render stage first")

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.models.checkpoints import import_extra, require_checkpoint
+from pipeline.models.checkpoints import CHECKPOINT_LOAD_ERRORS, import_extra, one_line, require_checkpoint
 from pipeline.models.segmenter import FrameInput, ModelError, Segmenter
 
 MODEL_TYPES = ("vit_h", "vit_l", "vit_b")
@@ -47,8 +47,8 @@ class SamSegmenter(Segmenter):
         segment_anything = import_extra("segment_anything", "sam", self.name)
         try:
             network = segment_anything.sam_model_registry[self.model_type](checkpoint=str(self.checkpoint))
-        except (RuntimeError, KeyError, ValueError) as error:
-            raise ModelError(f"{self.checkpoint}: not a {self.model_type} SAM checkpoint ({str(error)[:200]}); "
+        except CHECKPOINT_LOAD_ERRORS as error:
+            raise ModelError(f"{self.checkpoint}: not a {self.model_type} SAM checkpoint ({one_line(error)}); "
                              "pass model_type= to match the file") from None
         self.options = {"points_per_side": points_per_side, "pred_iou_thresh": pred_iou_thresh,
                         "stability_score_thresh": stability_score_thresh, "min_mask_region_area": min_mask_region_area}

@@ -11,13 +11,12 @@ imported, and nothing here draws labels, which is what would fetch its font.
 from __future__ import annotations
 
 import os
-import pickle
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
-from pipeline.models.checkpoints import import_extra, require_checkpoint
+from pipeline.models.checkpoints import CHECKPOINT_LOAD_ERRORS, import_extra, one_line, require_checkpoint
 from pipeline.models.segmenter import FrameInput, ModelError, Segmenter
 
 # Read by ultralytics when it is first imported: no network checks, no pip installs, no banner per call.
@@ -62,8 +61,9 @@ class UltralyticsSegmenter(Segmenter):
                 self.model = ultralytics.FastSAM(str(self.checkpoint))
             else:
                 self.model = ultralytics.YOLO(str(self.checkpoint), task="segment")
-        except (RuntimeError, KeyError, AttributeError, ValueError, TypeError, EOFError, pickle.UnpicklingError) as error:
-            raise ModelError(f"{self.checkpoint}: not a loadable ultralytics segmentation checkpoint ({error})") from None
+        except CHECKPOINT_LOAD_ERRORS as error:
+            raise ModelError(f"{self.checkpoint}: not a loadable ultralytics segmentation checkpoint "
+                             f"({one_line(error)})") from None
 
     def segment(self, frame: FrameInput) -> np.ndarray:
         """(N, H, W) bool masks of the frame (ultralytics reads numpy images as BGR, so the channels flip)."""

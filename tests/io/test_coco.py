@@ -90,7 +90,8 @@ def test_masks_decode_to_the_runs_panoptic_masks_exactly(exported: Path, tiny_ru
 
 
 def test_each_split_has_its_own_file_and_images(exported: Path) -> None:
-    assert sorted(p.name for p in (exported / "annotations").iterdir()) == ["instances_train.json", "instances_val.json"]
+    annotation_files = sorted(p.name for p in (exported / "annotations").iterdir())
+    assert annotation_files == ["instances_train.json", "instances_val.json"]
     val = json.loads(annotation_file(exported, "val").read_text())
     assert {(i["embodiment"], i["frame"]) for i in val["images"]} == {("spot", 0), ("spot", 2), ("spot", 4)}
     assert len(list((exported / "images" / "val").iterdir())) == 3
@@ -119,7 +120,8 @@ def test_void_and_unmapped_objects_are_not_annotated() -> None:
     panoptic = np.array([[0, 5, 5], [7, 7, 9]], dtype=np.uint32)
     video = SimpleNamespace(categories={5: 3, 7: 0, 9: 1}, path=Path("v.zarr"))  # 7: unmapped, 9: wall
     kept = frame_objects(panoptic, video, drop_stuff=False)  # type: ignore[arg-type]
-    assert [(o.object_id, o.category, o.is_stuff, int(o.mask.sum())) for o in kept] == [(5, 3, False, 2), (9, 1, True, 1)]
+    assert [(o.object_id, o.category, o.is_stuff, int(o.mask.sum())) for o in kept] == [
+        (5, 3, False, 2), (9, 1, True, 1)]
     assert [o.object_id for o in frame_objects(panoptic, video, drop_stuff=True)] == [5]  # type: ignore[arg-type]
     with pytest.raises(TrainingExportError, match="object 8 has no category"):
         frame_objects(np.array([[8]], dtype=np.uint32), video, drop_stuff=False)  # type: ignore[arg-type]

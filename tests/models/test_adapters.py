@@ -106,13 +106,18 @@ def test_ultralytics_defaults_are_the_papers_fastsam_x_settings(yolo_checkpoint:
         "architecture": "fastsam", "imgsz": 1024, "conf": 0.4, "iou": 0.9, "retina_masks": True}
 
 
-def test_ultralytics_refuses_a_file_that_is_not_a_checkpoint(tmp_path: Path) -> None:
+@pytest.mark.parametrize("model, package, message", [
+    ("ultralytics", "ultralytics", "not a loadable ultralytics segmentation checkpoint"),
+    ("sam", "segment_anything", "not a vit_h SAM checkpoint"),
+])
+def test_a_file_that_is_not_a_checkpoint_is_refused(tmp_path: Path, model: str, package: str, message: str) -> None:
     pytest.importorskip("torch")
-    pytest.importorskip("ultralytics")
+    pytest.importorskip(package)
     broken = tmp_path / "broken.pt"
     broken.write_bytes(b"this is not a checkpoint")
-    with pytest.raises(ModelError, match="not a loadable ultralytics segmentation checkpoint"):
-        make_segmenter("ultralytics", checkpoint=broken)
+    with pytest.raises(ModelError, match=message) as caught:
+        make_segmenter(model, checkpoint=broken)
+    assert "\n" not in str(caught.value)
 
 
 @pytest.fixture
