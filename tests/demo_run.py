@@ -1,4 +1,4 @@
-"""A demo-shaped run built once per test session: the demo job's embodiments, scene ids and video names,
+"""A demo-shaped run built once per test session: the demo job's embodiments, scenes, split and video names,
 at 64x48 pixels with a handful of frames, so commands written for `runs/demo` can run against it."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ DEMO_SHAPED_JOB = """
 name: demo
 seed: 0
 scenes:
-  procedural: {count: 1, seed: 0, detail: 0.05}
+  procedural: {count: 3, seed: 0, detail: 0.05}
 embodiments:
   - name: ambient
     sensor: {width: 64, height: 48, hfov: 69.0}
@@ -25,6 +25,9 @@ embodiments:
     body: {radius: 0.15, height: 1.2}
     illumination: {kind: spot, power: 20.0, cone: 180.0, blend: 1.0}
 plan: {trajectories_per_scene: 1, min_frames: 10, max_frames: 30}
+split:
+  scenes: {mode: fractions, fractions: {train: 0.34, val: 0.33, test: 0.33}}
+  zero_shot: {encoder: tfidf, clusters: 10, unseen_fraction: 0.2}
 """
 # The demo's first video: scene proc-000000, trajectory 0, camera at 0.1 m.
 DEMO_VIDEO = "proc-000000.0000000000.0000000100"
