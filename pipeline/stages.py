@@ -11,6 +11,8 @@ STAGE_CLASSES: dict[str, str] = {
     "shard": "pipeline.scenes.shard:SceneSharder",
     "plan": "pipeline.plan.stage:PathPlanner",
     "render": "pipeline.render.stage:RgbdRenderer",
+    "screen": "pipeline.split.stage:VideoScreener",
+    "split": "pipeline.split.stage:SplitAssigner",
 }
 # `evaluate` runs through `mvpd evaluate` (it needs predictions), on the same runtime.
 JOB_STAGES = tuple(STAGE_CLASSES)

@@ -26,7 +26,8 @@ def register(app: typer.Typer) -> None:
         run: Annotated[Optional[Path], typer.Argument(help="run folder whose rendered videos are the ground truth")] = None,
         pred: Annotated[Path, typer.Option("--pred", help="predictions: <pred>/panomasksRLE/<video>/<frame>.json (or .pt), or <pred>/<video>.zarr ids")] = ...,  # type: ignore[assignment]
         gt_mvpd: Annotated[Optional[Path], typer.Option("--gt-mvpd", help="MVPd release root holding <split>/panoptic_<split>.json")] = None,
-        split: Annotated[Optional[str], typer.Option("--split", help="MVPd split to evaluate (with --gt-mvpd); for a run, the name its videos are reported under")] = None,
+        split: Annotated[Optional[str], typer.Option("--split", help="MVPd split to evaluate (with --gt-mvpd); for a run with a split stage, its split whose accepted videos are scored [default: test]")] = None,
+        videos: Annotated[Optional[str], typer.Option("--videos", help="score only these videos: names or globs, comma-separated (predictions needed only for them)")] = None,
         out: Annotated[Optional[Path], typer.Option("--out", help="write the result JSON here (required with --gt-mvpd)")] = None,
         work: Annotated[Optional[Path], typer.Option("--work", help="evaluation run folder for --gt-mvpd [default: <out>.run]")] = None,
         embodiment: Annotated[Optional[str], typer.Option("--embodiment", help="runs: evaluate this embodiment's videos")] = None,
@@ -44,7 +45,9 @@ def register(app: typer.Typer) -> None:
         from pipeline.evaluate.api import evaluate_mvpd, evaluate_run
         from pipeline.evaluate.errors import EvaluationInputError
         from pipeline.evaluate.report import summary_table, write_json
+        from pipeline.evaluate.subset import parse_video_patterns
         from pipeline.evaluate.vsq import ProtocolError
+        from pipeline.split.selection import has_split
 
         if (run is None) == (gt_mvpd is None):
             fail("give either a RUN folder or --gt-mvpd ROOT --split SPLIT (not both)")
@@ -55,16 +58,17 @@ def register(app: typer.Typer) -> None:
         try:
             with stage_progress() as observer:
                 common = dict(allow_missing=allow_missing, overrides=overrides, force=all_videos, address=address,
-                              on_start=observer.on_stage_start, on_unit=observer.on_unit, executor=executor.value)
+                              on_start=observer.on_stage_start, on_unit=observer.on_unit,
+                              videos=parse_video_patterns(videos), executor=executor.value)
                 if gt_mvpd is not None:
                     assert split is not None and out is not None
                     result = evaluate_mvpd(gt_mvpd, split, pred, work or out.with_suffix(".run"), **common)  # type: ignore[arg-type]
                     result.split = split
                 else:
                     assert run is not None
-                    result = evaluate_run(run, pred, embodiment, **common)  # type: ignore[arg-type]
-                    # Runs have no split stage yet: every video is in the one split named here.
-                    result.split = split or "all"
+                    if (run / "job.yaml").is_file() and not has_split(run):
+                        console.print(f"{run}: no split stage in this run; scoring every video (zero-shot bucket empty)")
+                    result = evaluate_run(run, pred, embodiment, split=split, **common)  # type: ignore[arg-type]
         except (EvaluationInputError, ProtocolError, ConfigError, RunFolderError, RunLockedError, StageOrderError) as error:
             fail(str(error))
         for video, info in result.videos.items():

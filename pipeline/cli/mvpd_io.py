@@ -12,9 +12,10 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from pipeline.cli.run_commands import EXECUTOR_HELP, ExecutorChoice
 from pipeline.config import ConfigError
-from pipeline.io.mvpd import MvpdExportError, MvpdFormatError, MvpdImportError, export_release, import_release
+from pipeline.io.mvpd import (MvpdExportError, MvpdFormatError, MvpdImportError, export_release, export_release_splits,
+                              import_release)
 from pipeline.runtime.lock import RunLockedError
-from pipeline.runtime.run_folder import RunFolderError
+from pipeline.runtime.run_folder import RunFolder, RunFolderError
 
 USAGE_ERRORS = (MvpdFormatError, MvpdExportError, MvpdImportError, ConfigError, RunFolderError, RunLockedError)
 
@@ -46,22 +47,75 @@ def _video_progress(label: str) -> Iterator[tuple[Callable[[int], None], Callabl
 
 def export_command(
     run_dir: Annotated[Path, typer.Argument(help="run folder to export")],
-    mvpd: Annotated[Path, typer.Option("--mvpd", help="MVPd root to write; the split folder goes inside it")],
-    split: Annotated[str, typer.Option(help="split name (every video goes in it until a split stage exists)")] = "test",
+    mvpd: Annotated[Optional[Path],
+                    typer.Option("--mvpd", help="MVPd root to write; the split folder goes inside it")] = None,
+    split: Annotated[Optional[str], typer.Option(help="split to write [default: every split of the run's split stage; without one, every video as 'test']")] = None,
     embodiment: Annotated[Optional[str], typer.Option(help="embodiment to export (if the job has several)")] = None,
-    overwrite: Annotated[bool, typer.Option("--overwrite", help="replace an existing <mvpd>/<split>")] = False,
+    overwrite: Annotated[bool, typer.Option(
+        "--overwrite", help="replace an existing export (<mvpd>/<split>, or the --coco/--yolo files)")] = False,
+    coco: Annotated[Optional[Path],
+                    typer.Option("--coco", help="write COCO instance segmentation here instead")] = None,
+    yolo: Annotated[Optional[Path],
+                    typer.Option("--yolo", help="write the ultralytics YOLO-seg layout here instead")] = None,
+    every: Annotated[int, typer.Option(help="--coco/--yolo: keep every n-th frame of each video")] = 1,
+    categories: Annotated[str, typer.Option(help="--coco/--yolo: agnostic (one class) or mpcat40")] = "agnostic",
+    drop_stuff: Annotated[bool,
+                          typer.Option("--drop-stuff", help="--coco/--yolo: leave out wall, floor, ceiling")] = False,
 ) -> None:
-    """Write a run's videos as an MVPd release split: JPEG colour, uint16 depth PNG, COCO panoptic PNG, JSON."""
+    """Write a run's videos as an MVPd release split (JPEG colour, uint16 depth PNG, COCO panoptic PNG, JSON),
+    or as training data: COCO instance segmentation (--coco) or the ultralytics YOLO layout (--yolo)."""
     from pipeline.cli.console import console, fail
+    from pipeline.split.selection import has_split
 
+    if coco is not None or yolo is not None or mvpd is None:
+        _training_export(run_dir, coco, yolo, mvpd, every, categories, drop_stuff, embodiment, overwrite)
+        return
     try:
         with _video_progress("export") as (on_start, on_video):
-            summary = export_release(run_dir, mvpd, split, embodiment, overwrite, on_video=on_video, on_start=on_start)
+            if split is None and has_split(run_dir):
+                summaries = export_release_splits(run_dir, mvpd, embodiment, overwrite, on_video=on_video, on_start=on_start)
+            else:
+                summaries = [export_release(run_dir, mvpd, split or "test", embodiment, overwrite, on_video=on_video,
+                                            on_start=on_start)]
     except USAGE_ERRORS as error:
         fail(str(error))
-    rejected = f", {len(summary.rejected)} empty (rejected)" if summary.rejected else ""
-    console.print(f"export: {summary.videos} videos, {summary.frames} frames{rejected} -> {summary.split_folder} "
-                  f"in {summary.seconds:.1f} s")
+    for warning in dict.fromkeys(w for summary in summaries for w in summary.warnings):
+        console.print(f"[yellow]warning:[/] {warning}", soft_wrap=True)
+    for summary in summaries:
+        rejected = f", {len(summary.rejected)} rejected" if summary.rejected else ""
+        console.print(f"export: {summary.videos} videos, {summary.frames} frames{rejected} -> {summary.split_folder} "
+                      f"in {summary.seconds:.1f} s")
+
+
+def _training_export(run_dir: Path, coco: Optional[Path], yolo: Optional[Path], mvpd: Optional[Path], every: int,
+                     categories: str, drop_stuff: bool, embodiment: Optional[str], overwrite: bool) -> None:
+    """`export --coco OUT` / `--yolo OUT`: every split of the run (or all videos as `all`) as training data."""
+    from pipeline.cli.console import console, fail
+    from pipeline.io.coco import CocoExporter
+    from pipeline.io.training_export import (ExportOptions, TrainingExportError, export_training_data, run_splits,
+                                             unsplit)
+    from pipeline.io.yolo import YoloExporter
+
+    if sum(target is not None for target in (mvpd, coco, yolo)) != 1:
+        fail("give exactly one of --mvpd, --coco or --yolo")
+    from pipeline.split.selection import accepted_videos
+    out, exporter = (coco, CocoExporter) if coco is not None else (yolo, YoloExporter)
+    options = ExportOptions(every, categories, drop_stuff, embodiment, overwrite)  # type: ignore[arg-type]
+    try:
+        RunFolder.open(run_dir)
+        splits = run_splits(lambda name: accepted_videos(run_dir, name))
+        has_split = splits is not None
+        splits = splits if splits is not None else unsplit(run_dir)
+        with _video_progress("export") as (on_start, on_video):
+            summary = export_training_data(run_dir, out, splits, exporter, options, on_start=on_start,
+                                           on_video=on_video)
+    except (TrainingExportError, *USAGE_ERRORS) as error:
+        fail(str(error))
+    if not has_split:
+        console.print(f"{run_dir}: the run has no split; every video was exported as one split named `all`")
+    frames = ", ".join(f"{split} {count}" for split, count in summary.frames.items())
+    console.print(f"export: {sum(summary.frames.values())} frames ({frames}), {summary.objects} objects -> "
+                  f"{summary.out} in {summary.seconds:.1f} s")
 
 
 def import_command(

@@ -12,7 +12,7 @@ from rich.table import Table
 
 from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, stage_progress
 from pipeline.config import ConfigError, json_schemas, load_job
-from pipeline.io.dataset_stats import StatsError, dataset_stats, write_stats_picture
+from pipeline.io.dataset_stats import COMPARISON_COLUMNS, SPLIT_ROWS, StatsError, dataset_stats, write_stats_picture
 from pipeline.io.query import QueryError, query, write_result
 from pipeline.runtime.executor import StageOrderError, StagePlan
 from pipeline.runtime.lock import RunLockedError
@@ -109,6 +109,7 @@ def demo(
                   f"and {pictures[-1]}")
     console.print(f'[bold]query:[/] mvpd query {run_dir} "select embodiment, count(*) videos, sum(frames) frames '
                   'from videos group by 1"')
+    stats(run_dir)
     _finish(report)
 
 
@@ -251,6 +252,20 @@ def stats(
     for row in found.per_category[:top]:
         categories.add_row(str(row["name"]), f"{row['masks']:,}", f"{row['instances']:,}")
     console.print(categories)
+    if found.per_split:
+        splits = Table("", *(str(row["split"]) for row in found.per_split), title="splits (all embodiments)")
+        for key, label in SPLIT_ROWS.items():
+            splits.add_row(label, *(f"{int(row[key]):,}" for row in found.per_split))
+        console.print(splits)
+    else:
+        console.print("no split stage in this run (add a `split:` section to the job for train / val / test)")
+    # Transposed (one line per column of the paper's table) so it fits a terminal.
+    comparison = Table("column", "this run", title="as a row of the MVPd paper's dataset comparison")
+    for key, label in COMPARISON_COLUMNS.items():
+        value = found.comparison[key]
+        comparison.add_row(label, f"{value:,.1f}" if isinstance(value, float) else f"{value:,}" if isinstance(value, int)
+                           else str(value))
+    console.print(comparison)
     if picture:
         console.print(f"picture: {picture}")
 

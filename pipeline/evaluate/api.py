@@ -51,24 +51,36 @@ def evaluation_job(mvpd_root: Path, split: str, overrides: dict[str, Any] | None
 def evaluate_run(run_dir: str | Path, predictions: str | Path, embodiment: str | None = None,
                  allow_missing: bool = False, overrides: dict[str, Any] | None = None, force: bool = False,
                  address: str | None = None, on_start: StartCallback | None = None,
-                 on_unit: ProgressCallback | None = None, executor: ExecutorName = "auto") -> EvaluationResult:
-    """VSQ of `predictions` on the rendered videos of a run; counts go to the run's `metrics/`."""
+                 on_unit: ProgressCallback | None = None, split: str | None = None,
+                 videos: tuple[str, ...] = (), executor: ExecutorName = "auto") -> EvaluationResult:
+    """VSQ of `predictions` on the rendered videos of a run; counts go to the run's `metrics/`.
+
+    With a split stage in the run, `split` (default test) chooses the accepted videos scored and fills the
+    zero-shot bucket; without one every video is scored (`result.split` is then "all"). `videos` narrows
+    the set to names or globs.
+    """
+    from pipeline.split.selection import has_split
+
     run = RunFolder.open(run_dir)
     job = with_protocol(run.job(), overrides)
-    inputs = EvaluationInputs(str(Path(predictions).resolve()), allow_missing, embodiment)
-    return _run(VsqEvaluator(job, inputs), run, force, address, on_start, on_unit, executor)
+    chosen = (split or "test") if has_split(run) else None
+    inputs = EvaluationInputs(str(Path(predictions).resolve()), allow_missing, embodiment, split=chosen, videos=videos)
+    result = _run(VsqEvaluator(job, inputs), run, force, address, on_start, on_unit, executor)
+    result.split = chosen or "all"
+    return result
 
 
 def evaluate_mvpd(mvpd_root: str | Path, split: str, predictions: str | Path, work_dir: str | Path,
                   allow_missing: bool = False, overrides: dict[str, Any] | None = None, force: bool = False,
                   address: str | None = None, on_start: StartCallback | None = None,
-                  on_unit: ProgressCallback | None = None, executor: ExecutorName = "auto") -> EvaluationResult:
+                  on_unit: ProgressCallback | None = None, videos: tuple[str, ...] = (),
+                  executor: ExecutorName = "auto") -> EvaluationResult:
     """VSQ of `predictions` on an MVPd split; counts go to `work_dir/metrics/` (an evaluation run folder)."""
     MvpdSplit(mvpd_root, split)  # fails fast, before any folder is created, without panoptic_<split>.json
     job = evaluation_job(Path(mvpd_root).resolve(), split, overrides)
     run = RunFolder.create(work_dir, job)
     inputs = EvaluationInputs(str(Path(predictions).resolve()), allow_missing,
-                              mvpd_root=str(Path(mvpd_root).resolve()), split=split)
+                              mvpd_root=str(Path(mvpd_root).resolve()), split=split, videos=videos)
     return _run(MvpdVsqEvaluator(job, inputs), run, force, address, on_start, on_unit, executor)
 
 

@@ -3,7 +3,7 @@
 JSON: {"per_video": {video: {"zero-shot"|"non-zero-shot": {"1"|"5"|...: {"IOU", "TP", "FP", "FN"}}}},
        "summary": {"aggregate"|"zero-shot"|"non-zero-shot": {"1", "5", ..., "VSQ"}},
        "videos": {video: {"frames", "missing_frames"}}, "protocol": {...}, "failed": [...]}
-Values are fractions (not percent); a bucket without ground truth has null.
+Values are fractions (not percent); a bucket no video adds to is 0.0 for every k, as published.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ class EvaluationResult:
     split: str = ""
 
     @property
-    def summary(self) -> dict[str, dict[str, float | None]]:
+    def summary(self) -> dict[str, dict[str, float]]:
         return summarize(self.per_video.values(), self.protocol.ks)
 
     @property

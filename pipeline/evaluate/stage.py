@@ -18,6 +18,7 @@ from pipeline.evaluate.frames import GroundTruthFrame, LazyFrames, PredictionFra
 from pipeline.evaluate.errors import GroundTruthError, MissingPredictionError
 from pipeline.evaluate.ground_truth import GroundTruthLoader, MvpdSplit, VideoSpec, run_videos
 from pipeline.evaluate.predictions import RLE_FOLDER, PredictionSource
+from pipeline.evaluate.subset import filter_by_patterns, select_split
 from pipeline.evaluate.vsq import BUCKETS, VideoCounts, VsqProtocol, evaluate_video
 from pipeline.io.tables import to_table
 from pipeline.runtime.run_folder import RunFolder
@@ -33,7 +34,8 @@ class EvaluationInputs:
         allow_missing: a missing prediction frame counts as empty (and is reported) instead of failing.
         embodiment: runs only: the embodiment whose videos are evaluated.
         mvpd_root: MVPd only: the release root holding `<split>/panoptic_<split>.json`.
-        split: MVPd only: the split name.
+        split: the split name (MVPd: its folder; runs: a split of the run's split stage, None for every video).
+        videos: names or globs of the videos to score (empty: every video of the split).
     """
 
     predictions: str
@@ -41,6 +43,7 @@ class EvaluationInputs:
     embodiment: str | None = None
     mvpd_root: str | None = None
     split: str | None = None
+    videos: tuple[str, ...] = ()
 
 
 def unit_id(spec: VideoSpec) -> str:
@@ -73,13 +76,14 @@ class VsqEvaluator(Stage):
         self.protocol = VsqProtocol.from_config(job.evaluate)
 
     def videos(self, run: RunFolder) -> list[VideoSpec]:
-        """The ground-truth videos, sorted by key."""
-        return run_videos(run.root, self.inputs.embodiment)
+        """The ground-truth videos, sorted by key: the split's accepted ones when a split is chosen."""
+        specs = run_videos(run.root, self.inputs.embodiment)
+        return specs if self.inputs.split is None else select_split(run.root, specs, self.inputs.split)
 
     def units(self, run: RunFolder) -> list[Unit]:
         predictions = Path(self.inputs.predictions)
         units = []
-        for spec in self.videos(run):
+        for spec in filter_by_patterns(self.videos(run), self.inputs.videos):
             stamp = (_fingerprint(predictions / RLE_FOLDER / spec.video_name)
                      + _fingerprint(predictions / f"{spec.video_name}.zarr"))
             if not stamp:  # checked here, in the driver, so the error comes at once and names the folder

@@ -254,15 +254,15 @@ def pooled(videos: Iterable[VideoCounts], ks: tuple[int, ...]) -> dict[str, dict
     return totals
 
 
-def summarize(videos: Iterable[VideoCounts], ks: tuple[int, ...]) -> dict[str, dict[str, float | None]]:
+def summarize(videos: Iterable[VideoCounts], ks: tuple[int, ...]) -> dict[str, dict[str, float]]:
     """{"aggregate"|"zero-shot"|"non-zero-shot": {"1", "5", ..., "VSQ"}} as fractions.
 
-    A bucket without any ground truth has None (JSON null) rather than a made-up 0.
+    A bucket no video adds to (e.g. the zero-shot bucket of a split without zero-shot objects) is 0.0
+    for every k and VSQ, as the published summary reports it.
     """
-    summary: dict[str, dict[str, float | None]] = {}
+    summary: dict[str, dict[str, float]] = {}
     for bucket, per_k in pooled(videos, ks).items():
-        values = {str(k): per_k[k].quality() for k in ks}
-        scored = [v for v in values.values() if v is not None]
-        values["VSQ"] = sum(scored) / len(ks) if len(scored) == len(ks) else None
+        values = {str(k): per_k[k].quality() or 0.0 for k in ks}
+        values["VSQ"] = sum(values.values()) / len(ks)
         summary[bucket] = values
     return summary

@@ -7,7 +7,7 @@ per mask: 162 M rows at MVPd scale), so nothing is loaded into Python row by row
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +51,26 @@ group by 1 order by masks desc, s.category
 """
 
 
+# Per split (all embodiments): what the split stage kept and why it rejected the rest.
+PER_SPLIT = """
+with per_video as (select embodiment, video_name, count(*) as masks from segments group by all)
+select s.split, count(*) as videos, sum(v.frames) as frames, coalesce(sum(p.masks), 0) as masks,
+       count(*) filter (where s.empty) as rejected_empty,
+       count(*) filter (where s.zero_shot_rejected) as rejected_zero_shot,
+       count(*) filter (where s.accepted) as accepted
+from splits s join videos v using (embodiment, video_name)
+left join per_video p using (embodiment, video_name)
+group by s.split order by case s.split when 'train' then 0 when 'val' then 1 when 'test' then 2 else 3 end, s.split
+"""
+
+CLUSTERS = "select cluster, size, training_videos, unseen, example_names from zero_shot_clusters order by rank"
+
+SPLIT_ROWS = {  # per-split statistic -> label
+    "videos": "videos", "frames": "frames", "masks": "masks", "rejected_empty": "rejected empty",
+    "rejected_zero_shot": "rejected zero-shot", "accepted": "accepted",
+}
+
+
 class StatsError(ValueError):
     """The run has nothing to describe yet."""
 
@@ -62,6 +82,9 @@ class DatasetStats:
     per_embodiment: list[dict[str, object]]
     instances: int
     per_category: list[dict[str, object]]
+    per_split: list[dict[str, object]] = field(default_factory=list)
+    clusters: list[dict[str, object]] = field(default_factory=list)
+    comparison: dict[str, object] = field(default_factory=dict)
 
 
 def dataset_stats(run: RunFolder) -> DatasetStats:
@@ -70,7 +93,38 @@ def dataset_stats(run: RunFolder) -> DatasetStats:
     category_names = {index: category.name for index, category in categories().items()}
     per_category = [{**row, "name": category_names.get(int(row["category"]), "?")}
                     for row in _rows(connection, PER_CATEGORY)]
-    return DatasetStats(_rows(connection, PER_EMBODIMENT), int(connection.sql(INSTANCES).fetchall()[0][0]), per_category)
+    datasets = set(run.datasets())
+    found = DatasetStats(_rows(connection, PER_EMBODIMENT), int(connection.sql(INSTANCES).fetchall()[0][0]), per_category,
+                         _rows(connection, PER_SPLIT) if "splits" in datasets else [],
+                         _rows(connection, CLUSTERS) if "zero_shot_clusters" in datasets else [])
+    found.comparison = comparison_row(run, found)
+    return found
+
+
+def comparison_row(run: RunFolder, stats: DatasetStats) -> dict[str, object]:
+    """The run as a row of the paper's dataset comparison table (MVPd's: indoor, RGB-D, yes, 18,000 videos,
+    6.06 M images, objects per video, 40 classes, 3 stuff, yes, yes)."""
+    job = run.job()
+    stuff = {1, 2, 17}  # wall, floor, ceiling
+    present = {int(row["category"]) for row in stats.per_category if int(row["category"]) > 0}
+    videos = sum(int(r["videos"]) for r in stats.per_embodiment)
+    objects = [float(r["objects_per_video"]) * int(r["videos"]) for r in stats.per_embodiment if r["objects_per_video"] is not None]
+    return {
+        "dataset": run.root.name, "setting": "indoor", "modality": "RGB-D", "camera_pose": "yes",
+        "videos": videos, "images": sum(int(r["frames"]) for r in stats.per_embodiment),
+        "objects_per_video": sum(objects) / videos if videos else 0.0,
+        "classes": len(present - stuff), "stuff": len(present & stuff),
+        "unseen_split": "yes" if any(c["unseen"] for c in stats.clusters) else "no",
+        # The same floor path seen from several heights is the paper's sensor-placement control.
+        "sensor_placement_control": "yes" if any(len(e.placements) > 1 for e in job.embodiments) else "no",
+    }
+
+
+COMPARISON_COLUMNS = {  # key -> header of the paper's comparison table
+    "dataset": "dataset", "setting": "setting", "modality": "modality", "camera_pose": "camera pose",
+    "videos": "videos", "images": "images", "objects_per_video": "objects / video", "classes": "classes",
+    "stuff": "stuff", "unseen_split": "unseen split", "sensor_placement_control": "sensor placement control",
+}
 
 
 def write_stats_picture(run: RunFolder, stats: DatasetStats, out: Path, top: int = 30) -> Path:
@@ -82,7 +136,12 @@ def write_stats_picture(run: RunFolder, stats: DatasetStats, out: Path, top: int
     import matplotlib.pyplot as plt
 
     connection = _connection(run)
-    figure, axes = plt.subplots(2, 2, figsize=(14, 9), constrained_layout=True)
+    rows = 3 if stats.clusters else 2
+    figure = plt.figure(figsize=(14, 4.5 * rows), constrained_layout=True)
+    grid = figure.add_gridspec(rows, 2)
+    axes = np.array([[figure.add_subplot(grid[r, c]) for c in range(2)] for r in range(2)])
+    if stats.clusters:
+        draw_cluster_histogram(figure.add_subplot(grid[2, :]), stats.clusters)
     shown = stats.per_category[:top]
     colours = {index: tuple(c / 255 for c in category.rgb) for index, category in categories().items()}
     axes[0, 0].bar([row["name"] for row in shown], [row["masks"] for row in shown],
@@ -117,6 +176,22 @@ def write_stats_picture(run: RunFolder, stats: DatasetStats, out: Path, top: int
     plt.close(figure)
     partial.replace(out)  # never a half-written picture under the real name
     return out
+
+
+def draw_cluster_histogram(axis: "object", clusters: list[dict[str, object]]) -> None:
+    """Training videos per zero-shot cluster (least seen first), unseen clusters hatched red, labelled by examples."""
+    labels = [", ".join(list(c["example_names"])[:2]) for c in clusters]  # type: ignore[call-overload]
+    counts = [int(c["training_videos"]) for c in clusters]  # type: ignore[call-overload]
+    bars = axis.bar(range(len(clusters)), counts, color=["#d62728" if c["unseen"] else "#1f77b4" for c in clusters],  # type: ignore[attr-defined]
+                    edgecolor="black")
+    for bar, cluster in zip(bars, clusters):
+        if cluster["unseen"]:
+            bar.set_hatch("//")
+    axis.set_xticks(range(len(clusters)), labels, rotation=35, ha="right", fontsize=8)  # type: ignore[attr-defined]
+    axis.set_ylabel("training videos")  # type: ignore[attr-defined]
+    axis.yaxis.get_major_locator().set_params(integer=True)  # type: ignore[attr-defined]
+    unseen = sum(bool(c["unseen"]) for c in clusters)
+    axis.set_title(f"zero-shot clusters: training videos showing any of their names ({unseen} unseen, hatched red)")  # type: ignore[attr-defined]
 
 
 def _connection(run: RunFolder) -> duckdb.DuckDBPyConnection:

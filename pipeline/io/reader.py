@@ -30,6 +30,19 @@ class VideoNotFoundError(LookupError):
     """A video name (or embodiment) that the run does not hold; the message lists what it does hold."""
 
 
+def _split_videos(run: Any, split: str | None) -> set[tuple[str, str]] | None:
+    """Accepted videos of `split` (None when no split is asked); raises when the run has no split output."""
+    if split is None:
+        return None
+    from pipeline.split.selection import accepted_videos
+
+    accepted = accepted_videos(_run_root(run), split)
+    if accepted is None:
+        raise VideoNotFoundError(f"{_run_root(run)}: the run has no split (no `splits` table); add a `split:` section "
+                                 "to the job and run `mvpd submit` again, or omit split=")
+    return set(accepted)
+
+
 @dataclass
 class LoadedVideo:
     """One stored video: lazy Zarr arrays (index them to read) and its metadata.
@@ -128,11 +141,16 @@ def _object_names(root: Path, scene_id: str) -> tuple[dict[int, int], dict[int, 
             dict(zip(ids, table.column("raw_name").to_pylist())))
 
 
-def load_video(run: Any, name: str, embodiment: str | None = None) -> LoadedVideo:
+def load_video(run: Any, name: str, embodiment: str | None = None, split: str | None = None) -> LoadedVideo:
     """Open one video of a run lazily. `run` is a RunFolder or a path; `embodiment` is needed only when
-    several embodiments rendered a video of that name."""
+    several embodiments rendered a video of that name; with `split`, a video the split rejected (empty,
+    or zero-shot in train) or that is in another split is not found."""
     root = _run_root(run)
     embodiment = _resolve_embodiment(root, name, embodiment)
+    accepted = _split_videos(root, split)
+    if accepted is not None and (embodiment, name) not in accepted:
+        raise VideoNotFoundError(f"{root}: video {embodiment}/{name} is not an accepted video of split {split!r} "
+                                 f"(`mvpd query {root} \"select * from splits where video_name = '{name}'\"` says why)")
     video = open_video(root / "videos" / embodiment / f"{name}.zarr")
     attributes = video.attrs
     categories = {int(k): int(v) for k, v in attributes.get("object_categories", {}).items()}
@@ -148,10 +166,11 @@ def load_video(run: Any, name: str, embodiment: str | None = None) -> LoadedVide
 
 
 def clip_index(run: Any, clip_len: int, stride: int | None = None,
-               videos: Sequence[tuple[str, str]] | None = None) -> list[tuple[str, str, int]]:
+               videos: Sequence[tuple[str, str]] | None = None, split: str | None = None) -> list[tuple[str, str, int]]:
     """(embodiment, video_name, start) of every clip of `clip_len` frames, starts every `stride` frames.
 
-    Clips never cross videos; a video shorter than `clip_len` gives none. Deterministic order.
+    Clips never cross videos; a video shorter than `clip_len` gives none. Deterministic order. With
+    `split`, only the split's accepted videos (rejected ones are skipped, as the authors' loader does).
     """
     if clip_len < 1:
         raise ValueError(f"clip_len must be >= 1, got {clip_len}")
@@ -162,14 +181,18 @@ def clip_index(run: Any, clip_len: int, stride: int | None = None,
     frames = {(e, n): f for e, n, f in zip(table.column("embodiment").to_pylist(),
                                              table.column("video_name").to_pylist(), table.column("frames").to_pylist())}
     keys = sorted(frames) if videos is None else list(videos)
+    accepted = _split_videos(run, split)
+    if accepted is not None:
+        keys = [key for key in keys if key in accepted]
     return [(e, n, start) for e, n in keys for start in range(0, frames[(e, n)] - clip_len + 1, stride)]
 
 
 def iter_clips(run: Any, clip_len: int, stride: int | None = None, videos: Sequence[tuple[str, str]] | None = None,
-               arrays: Sequence[str] = PIXEL_ARRAYS) -> Iterator[dict[str, Any]]:
-    """Yield clips (dicts of numpy arrays with a leading time axis, poses and keys) of a run's videos."""
+               arrays: Sequence[str] = PIXEL_ARRAYS, split: str | None = None) -> Iterator[dict[str, Any]]:
+    """Yield clips (dicts of numpy arrays with a leading time axis, poses and keys) of a run's videos
+    (with `split`: of that split's accepted videos only)."""
     opened: dict[tuple[str, str], LoadedVideo] = {}
-    for embodiment, name, start in clip_index(run, clip_len, stride, videos):
+    for embodiment, name, start in clip_index(run, clip_len, stride, videos, split):
         if (embodiment, name) not in opened:
             opened.clear()  # one open video at a time: memory stays flat over a whole run
             opened[(embodiment, name)] = load_video(run, name, embodiment)
@@ -198,9 +221,9 @@ def _torch_dataset_class() -> type:
         """Clips of a run as torch tensors: rgb (T, 3, H, W) uint8, depth (T, H, W) int32 mm, panoptic (T, H, W) int64."""
 
         def __init__(self, run: Any, clip_len: int, stride: int | None = None,
-                     videos: Sequence[tuple[str, str]] | None = None):
+                     videos: Sequence[tuple[str, str]] | None = None, split: str | None = None):
             self.run = _run_root(run)
-            self.index = clip_index(self.run, clip_len, stride, videos)
+            self.index = clip_index(self.run, clip_len, stride, videos, split)
             self.clip_len = clip_len
 
         def __len__(self) -> int:

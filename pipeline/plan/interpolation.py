@@ -95,3 +95,31 @@ def interpolate(waypoints: np.ndarray, max_step: float, max_turn: float) -> Floo
 def wrap_angle(angles: np.ndarray) -> np.ndarray:
     """Angles wrapped into [-pi, pi)."""
     return (np.asarray(angles, dtype=np.float64) + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def bound_steps_in_3d(trajectory: FloorTrajectory, floor_heights: np.ndarray,
+                      max_step: float) -> tuple[FloorTrajectory, np.ndarray]:
+    """Split every move whose 3D length (floor-plane move and floor height change) exceeds `max_step`.
+
+    The floor-plane moves are at most `max_step`, but the floor under them may rise or fall (a 1 cm
+    rug edge under a 5 cm move is a 5.1 cm step of the camera). Such a move becomes ceil(3D length /
+    max_step) equal sub-moves with the height interpolated linearly, so the camera ramps over the
+    edge and no frame moves more than `max_step` in 3D. Turns in place keep their frames.
+
+    Returns the new trajectory (same waypoints and floor-plane length) and the floor height per frame.
+    """
+    positions, heights = trajectory.positions, np.asarray(floor_heights, np.float64)
+    steps = np.sqrt(np.sum(np.diff(positions, axis=0) ** 2, axis=1) + np.diff(heights) ** 2)
+    pieces = np.maximum(np.ceil(steps / max_step - CEIL_TOLERANCE).astype(np.int64), 1)
+    if np.all(pieces == 1):
+        return trajectory, heights
+    # Frame k + 1 is reached in pieces[k] sub-moves; sub-move j of pieces p sits at fraction j / p.
+    starts = np.repeat(np.arange(len(pieces)), pieces)
+    fractions = (np.arange(len(starts)) - np.repeat(np.cumsum(pieces) - pieces, pieces) + 1) / np.repeat(pieces, pieces)
+    new_positions = positions[starts] + fractions[:, None] * (positions[starts + 1] - positions[starts])
+    new_heights = heights[starts] + fractions * (heights[starts + 1] - heights[starts])
+    new_headings = trajectory.headings[starts + 1]  # a move keeps the heading of the frame it reaches
+    bounded = FloorTrajectory(positions=np.concatenate([positions[:1], new_positions]),
+                              headings=np.concatenate([trajectory.headings[:1], new_headings]),
+                              waypoints=trajectory.waypoints, length=trajectory.length)
+    return bounded, np.concatenate([heights[:1], new_heights])

@@ -350,3 +350,50 @@ def label_islands(area: NavigableArea) -> np.ndarray:
     _, components = connected_components(area.graph(), directed=False)
     labels[layers, rows, cols] = components
     return labels
+
+
+# A building's entrance level: islands starting within this height of the lowest walkable floor are
+# candidates (uneven ground, a few steps at the door); the largest of them sets the ground height.
+GROUND_BAND_M = 1.0
+
+
+def island_summary(area: NavigableArea) -> tuple[np.ndarray, np.ndarray]:
+    """(islands,) area in m2 and (islands,) lowest floor height (world y) of each island."""
+    layers, rows, cols = area.node_cells()
+    labels = area.islands[layers, rows, cols]
+    count = area.island_count
+    sizes = np.bincount(labels, minlength=count) * area.resolution**2 if count else np.zeros(0)
+    lowest = np.full(count, np.inf)
+    np.minimum.at(lowest, labels, area.heights[layers, rows, cols].astype(np.float64))
+    return sizes, lowest
+
+
+def drawable_islands(area: NavigableArea, max_step: float, min_island_area: float,
+                     reachable_only: bool = True) -> np.ndarray:
+    """(islands,) bool: the islands trajectories may use.
+
+    An island smaller than `min_island_area` never gets a path. With `reachable_only`, only the floor a
+    robot put down at the building's entrance level could reach is kept: the largest island that starts
+    within GROUND_BAND_M of the lowest walkable floor is the entrance level (with every storey its stairs
+    reach, which are part of it), and other islands are kept only when they start within `max_step` of
+    its lowest floor (rooms behind closed doors). Roofs, attics, closed-off upper storeys and the tops of
+    furniture start higher and are left out.
+    """
+    sizes, lowest = island_summary(area)
+    keep = sizes >= min_island_area
+    if not reachable_only or not keep.any():
+        return keep
+    candidates = keep & (lowest <= lowest[keep].min() + GROUND_BAND_M)
+    entrance = int(np.argmax(np.where(candidates, sizes, -1.0)))
+    return keep & (np.abs(lowest - lowest[entrance]) <= max_step)
+
+
+def restrict_to_islands(area: NavigableArea, keep: np.ndarray) -> NavigableArea:
+    """A copy of `area` with only the kept islands navigable, islands renumbered 0.. in their old order."""
+    new_index = np.full(len(keep) + 1, -1, dtype=np.int32)  # the extra slot maps -1 (no island) to -1
+    new_index[np.flatnonzero(keep)] = np.arange(int(keep.sum()), dtype=np.int32)
+    islands = new_index[area.islands]
+    stats = {**area.stats, "drawable_islands": int(keep.sum()), "dropped_islands": int((~keep).sum()),
+             "drawable_area_m2": round(float((islands >= 0).sum()) * area.resolution**2, 4)}
+    return NavigableArea(origin=area.origin, resolution=area.resolution, heights=area.heights,
+                         navigable=islands >= 0, islands=islands, max_step=area.max_step, stats=stats)

@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.config import Body, PlanConfig
-from pipeline.plan.interpolation import FloorTrajectory, frame_count, interpolate
-from pipeline.plan.navigable import MeshQuery, NavigableArea
+from pipeline.plan.interpolation import FloorTrajectory, bound_steps_in_3d, frame_count, interpolate
+from pipeline.plan.navigable import MeshQuery, NavigableArea, drawable_islands, restrict_to_islands
 from pipeline.plan.search import PathSearch
 
 # Line-of-sight samples per cell: fine enough that consecutive samples are in neighbouring cells.
@@ -68,6 +68,8 @@ class FloorPathSampler:
     """Draws floor paths on one navigable area; `draw(rng, count)` is deterministic for a given rng."""
 
     def __init__(self, area: NavigableArea, mesh: MeshQuery, body: Body, plan: PlanConfig) -> None:
+        # Paths start and end only on the islands a robot could reach (plan.reachable_only, min_island_area).
+        area = restrict_to_islands(area, drawable_islands(area, body.max_step, plan.min_island_area, plan.reachable_only))
         self.area, self.mesh, self.body, self.plan = area, mesh, body, plan
         self.layers, self.rows, self.cols = area.node_cells()
         self.x, self.z = area.cell_centres(self.rows, self.cols)
@@ -125,6 +127,10 @@ class FloorPathSampler:
             return None, "too_long"
         trajectory = interpolate(waypoints, self.plan.max_step, self.max_turn)
         floor = self.floor_heights(trajectory, corners)
+        # The camera rides at floor + placement: the per-frame bound must hold in 3D, not only on the plan.
+        trajectory, floor = bound_steps_in_3d(trajectory, floor, self.plan.max_step)
+        if trajectory.frame_count > self.plan.max_frames:
+            return None, "too_long"
         if not poses_clear(self.mesh, trajectory.positions, floor, self.body):
             return None, "too_close"
         return FloorPath(trajectory, floor, start, goal), ""

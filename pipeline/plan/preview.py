@@ -1,8 +1,10 @@
 """Look at a plan: the navigable area (one colour per island) and the floor paths over the scene's
 top-down picture (`pipeline.scenes.preview.top_down_image`), written as a PNG.
 
-Paths are drawn as polylines from their start (green dot) to their goal (red dot); islands are tinted
-over the picture, so walls and furniture stay visible around them.
+Paths are drawn as polylines from their start (green dot) to their goal (red dot); islands that paths
+may use are tinted one distinct colour each, islands left out (not reachable from the entrance level, or
+smaller than `plan.min_island_area`) grey, so walls and furniture stay visible around them. A legend
+in the top-left corner names the colours.
 """
 
 from __future__ import annotations
@@ -20,7 +22,8 @@ import pyarrow.parquet as pq
 
 from pipeline.config import Body, PlanConfig
 from pipeline.io.tables import spec
-from pipeline.plan.navigable import MeshQuery, NavigableArea, NavigableAreaError, compute_navigable_area
+from pipeline.plan.navigable import (MeshQuery, NavigableArea, NavigableAreaError, compute_navigable_area, drawable_islands,
+                                      island_summary)
 from pipeline.plan.stage import navmesh_path
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.scenes.preview import top_down_image
@@ -33,6 +36,8 @@ ISLAND_ALPHA = 0.45
 PATH_COLOR = (20, 90, 230)
 START_COLOR = (20, 170, 40)
 GOAL_COLOR = (220, 30, 30)
+DROPPED_COLOR = (150, 150, 150)
+LEGEND_ISLANDS = 6  # islands listed by name in the legend; more are summed up in one line
 
 
 class PlanPreviewError(ValueError):
@@ -57,8 +62,13 @@ def island_colors(count: int) -> np.ndarray:
     return cv2.cvtColor(hsv[None], cv2.COLOR_HSV2RGB)[0] if count else np.zeros((0, 3), np.uint8)
 
 
-def preview_image(scene: Scene, area: NavigableArea, floor_paths: list[np.ndarray], size: int = 1024) -> np.ndarray:
-    """(H, W, 3) uint8 RGB: the scene from above, navigable islands tinted, paths ((T, 2) x, z) drawn."""
+def preview_image(scene: Scene, area: NavigableArea, floor_paths: list[np.ndarray], size: int = 1024,
+                  drawable: np.ndarray | None = None) -> np.ndarray:
+    """(H, W, 3) uint8 RGB: the scene from above, islands tinted, paths ((T, 2) x, z) drawn, a legend.
+
+    `drawable` ((islands,) bool) marks the islands paths may use; the others are grey. Default: all.
+    """
+    drawable = np.ones(area.island_count, bool) if drawable is None else drawable
     image = top_down_image(scene, size)
     low, high = scene.bounds()
     scale = (size - 2 * MARGIN) / max(high[0] - low[0], high[2] - low[2], 1e-6)
@@ -67,19 +77,62 @@ def preview_image(scene: Scene, area: NavigableArea, floor_paths: list[np.ndarra
         """World (x, z) -> pixel (column, row) of the top-down picture."""
         return np.round((xz - low[[0, 2]]) * scale + MARGIN).astype(np.int32)
 
-    _tint_islands(image, area, to_pixels)
+    colors = _island_palette(drawable)
+    _tint_islands(image, area, to_pixels, colors)
     for points in floor_paths:
         pixels = to_pixels(points)
         cv2.polylines(image, [pixels.reshape(-1, 1, 2)], False, PATH_COLOR, 2, cv2.LINE_AA)
         cv2.circle(image, tuple(int(v) for v in pixels[0]), 5, START_COLOR, -1, cv2.LINE_AA)
         cv2.circle(image, tuple(int(v) for v in pixels[-1]), 5, GOAL_COLOR, -1, cv2.LINE_AA)
+    return _draw_legend(image, area, drawable, colors, size)
+
+
+def _island_palette(drawable: np.ndarray) -> np.ndarray:
+    """(islands, 3) colours: distinct hues for drawable islands (in order), grey for the others."""
+    colors = np.tile(np.array(DROPPED_COLOR, np.uint8), (len(drawable), 1))
+    colors[drawable] = island_colors(int(drawable.sum()))
+    return colors
+
+
+def _draw_legend(image: np.ndarray, area: NavigableArea, drawable: np.ndarray, colors: np.ndarray,
+                 left: int) -> np.ndarray:
+    """The plan's key under the category legend on the right: islands (area), left-out islands, path, start, end.
+
+    Returns the picture, taller when the key needs more rows than it has.
+    """
+    sizes, _ = island_summary(area)
+    entries: list[tuple[tuple[int, int, int], str, str]] = []
+    for shown, island in enumerate(np.flatnonzero(drawable)):
+        if shown == LEGEND_ISLANDS:
+            rest = np.flatnonzero(drawable)[LEGEND_ISLANDS:]
+            entries.append(((255, 255, 255), "box", f"+{len(rest)} islands, {sizes[rest].sum():.1f} m2"))
+            break
+        entries.append((tuple(int(v) for v in colors[island]), "box", f"island {shown + 1}: {sizes[island]:.1f} m2"))
+    if (~drawable).any():
+        entries.append((DROPPED_COLOR, "box", f"{int((~drawable).sum())} islands left out"))
+    entries += [(PATH_COLOR, "line", "path"), (START_COLOR, "dot", "start"), (GOAL_COLOR, "dot", "end")]
+    background = image[-1, -1].copy()
+    used = np.flatnonzero(np.any(image[:, left:] != background, axis=(1, 2)))
+    top = (int(used.max()) if len(used) else 0) + 30
+    needed = top + 22 * len(entries)
+    if needed > image.shape[0]:
+        image = np.concatenate([image, np.tile(background, (needed - image.shape[0], image.shape[1], 1))])
+    for row, (color, mark, text) in enumerate(entries):
+        y = top + row * 22
+        if mark == "box":
+            cv2.rectangle(image, (left + 10, y - 12), (left + 28, y + 4), color, -1)
+        elif mark == "line":
+            cv2.line(image, (left + 10, y - 4), (left + 28, y - 4), color, 2, cv2.LINE_AA)
+        else:
+            cv2.circle(image, (left + 19, y - 4), 5, color, -1, cv2.LINE_AA)
+        cv2.putText(image, text, (left + 36, y + 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     return image
 
 
-def _tint_islands(image: np.ndarray, area: NavigableArea, to_pixels: Callable[[np.ndarray], np.ndarray]) -> None:
+def _tint_islands(image: np.ndarray, area: NavigableArea, to_pixels: Callable[[np.ndarray], np.ndarray],
+                  colors: np.ndarray) -> None:
     """Blend each navigable cell's island colour into the picture (the top-most layer of each column)."""
     layers, rows, cols = area.node_cells()
-    colors = island_colors(area.island_count)
     corners = to_pixels(np.stack(area.cell_centres(rows, cols), axis=1) - area.resolution / 2.0)
     far = to_pixels(np.stack(area.cell_centres(rows, cols), axis=1) + area.resolution / 2.0)
     overlay = image.copy()
@@ -112,12 +165,13 @@ def write_plan_preview(run: RunFolder, scene_id: str, out: Path, embodiment: str
     scene = load_scene_row(rows[0])
     area = _area(run, rows[0], scene, body, job.plan)
     floor_paths = run_floor_paths(run, scene_id, name)
-    image = preview_image(scene, area, floor_paths, size)
+    drawable = drawable_islands(area, body.max_step, job.plan.min_island_area, job.plan.reachable_only)
+    image = preview_image(scene, area, floor_paths, size, drawable)
     out.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
         raise PlanPreviewError(f"{out}: could not write the PNG; check the folder is writable "
                                "and the name ends in .png")
-    return PlanPreview(out, name, len(floor_paths), area.island_count, area.area_m2)
+    return PlanPreview(out, name, len(floor_paths), int(drawable.sum()), area.area_m2)
 
 
 def _area(run: RunFolder, row: dict, scene: Scene, body: Body, plan: PlanConfig) -> NavigableArea:

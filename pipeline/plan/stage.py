@@ -68,13 +68,13 @@ class PathPlanner(Stage):
         trajectories, frames = video_tables(scene_id, embodiment, paths, seed)
         context.write_table("trajectories", trajectories)
         context.write_table("frames", frames)
-        status, reason = plan_status(area, report, embodiment, self.job.plan)
+        status, reason = plan_status(area, report, embodiment, self.job.plan, sampler.area.island_count)
         log = context.log.warning if status != "planned" else context.log.info
         log("%s %s: %s %d of %d paths (%s)%s", scene_id, embodiment.name, status, report.accepted,
             self.job.plan.trajectories_per_scene, report.as_dict(), f": {reason}" if reason else "")
         return UnitResult(rows=context.rows_written,
                           info={"status": status, "reason": reason, "seed": seed, "draws": report.as_dict(),
-                                "navigable": area.stats})
+                                "navigable": sampler.area.stats})
 
     def _navigable_area(self, row: dict[str, Any], mesh: MeshQuery, body: Body, context: UnitContext) -> NavigableArea:
         """The scene's navigable area for `body`: read from the run's cache or computed, and (re)staged.
@@ -155,8 +155,12 @@ def video_tables(scene_id: str, embodiment: Embodiment, paths: list[FloorPath], 
     return to_table("trajectories", videos), to_table("frames", frame_columns)
 
 
-def plan_status(area: NavigableArea, report: DrawReport, embodiment: Embodiment, plan: PlanConfig) -> tuple[str, str]:
-    """("planned" | "partial" | "unplannable", reason): why a scene gave fewer paths than asked."""
+def plan_status(area: NavigableArea, report: DrawReport, embodiment: Embodiment, plan: PlanConfig,
+                drawable_islands: int | None = None) -> tuple[str, str]:
+    """("planned" | "partial" | "unplannable", reason): why a scene gave fewer paths than asked.
+
+    `drawable_islands` is how many islands paths may use (after plan.reachable_only / min_island_area).
+    """
     body = embodiment.body
     if area.stats.get("floor_nodes", 0) == 0:
         highest = area.stats.get("ceiling_clearance_max_m", 0.0)
@@ -167,6 +171,9 @@ def plan_status(area: NavigableArea, report: DrawReport, embodiment: Embodiment,
         return "unplannable", reason
     if area.stats.get("navigable_nodes", 0) == 0:
         return "unplannable", f"the floor has no place {body.radius} m (body.radius) away from walls and ledges"
+    if drawable_islands == 0:
+        return "unplannable", (f"no island of at least {plan.min_island_area} m2 (plan.min_island_area) at the "
+                               "entrance level; plan.reachable_only: false takes every island")
     if report.accepted == 0:
         return "unplannable", (f"no start/goal pair gave a {plan.min_frames}..{plan.max_frames}-frame "
                                f"collision-free path in {report.attempts} draws")

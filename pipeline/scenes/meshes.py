@@ -1,35 +1,57 @@
-"""Plain labelled meshes: OBJ, PLY or GLB with instance labels, plus a JSON of names and categories.
+"""Any mesh trimesh reads (OBJ + MTL, PLY, GLB / glTF, STL, OFF) as a labelled scene.
 
-Labels:
-    PLY  a face property `object_id` (or `instance`, `label`, `segment`), else the same vertex property
-         (a face takes the label of its first vertex);
-    OBJ  the trailing integer of the current `o` / `g` name (`o 12`, `g chair_12`);
-    GLB  a custom vertex attribute `_OBJECT_ID`, else the trailing integer of the node or mesh name.
-Names: `<stem>.json` beside the mesh, `{"objects": [{"id": 12, "name": "chair", "category": 3,
-"region": 0}, ...]}`; `category` defaults to the mpcat40 mapping of `name`, `region` to -1. Labels
-0 and labels the JSON does not list are void; the latter are counted in `Scene.unknown_colors`.
+The file is read through trimesh (geometry, the scene graph's node transforms, materials, vertex
+colours, textures including MTL `map_Kd`). What labels the faces is chosen by `labels`:
+
+    sidecar     `<stem>.json` beside the mesh (documented in schemas/mesh_sidecar.md):
+                `{"objects": [{"id": 12, "name": "chair", "category": 3, "region": 0}, ...]}`; the
+                ids come from label properties, else from the trailing integer of the OBJ `o` / `g`
+                name or of the glTF node name ("chair_12" -> 12). `category` defaults to the mpcat40
+                mapping of `name`, `region` to -1. Ids the JSON does not list are void and counted
+                in `Scene.unknown_colors`.
+    properties  a PLY face property `object_id` (or `instance`, `label`, `segment`), else the same
+                vertex property (a face takes its first vertex's label), or a glTF `_OBJECT_ID`
+                vertex attribute; the label is the object id, named `object_<id>`.
+    names       the OBJ group (`o` / `g`) of each face, else its material (`usemtl`); the glTF node
+                name otherwise: each distinct name is one object, mapped to mpcat40 through the
+                raw-name table when the name (trailing `_<n>` / `.<n>` removed) matches, else `misc`.
+    components  each connected component of the mesh is one `misc` object.
+    auto        (default) the first of those that the file supports, in that order.
+
+Colours: vertex colours, else material base colours and textures. A mesh with no colour at all is
+painted with a palette colour per object (and a warning), so objects stay distinguishable.
+Faces with fewer than 3 corners or zero area are dropped and counted in `Scene.degenerate_faces`.
 """
 
 from __future__ import annotations
 
 import json
+import logging
+import re
 from pathlib import Path
 
 import numpy as np
 
-from pipeline.scenes.categories import category_of
-from pipeline.scenes.glb import name_label, read_glb
+from pipeline.scenes.categories import categories, category_of
+from pipeline.scenes.glb import name_label
 from pipeline.scenes.hm3dsem import to_world, up_axis_transform
 from pipeline.scenes.scene import Scene, SceneError, SceneObject
+from pipeline.scenes.trimesh_reader import MESH_SUFFIXES, MeshPart, read_parts
 
-LABEL_PROPERTIES = ("object_id", "instance", "label", "segment")
+LOG = logging.getLogger(__name__)
+
+LABEL_MODES = ("auto", "sidecar", "properties", "names", "components")
+MISC_CATEGORY = next((c.index for c in categories().values() if c.name == "misc"), 0)
 
 
-def read_names(path: Path) -> dict[int, SceneObject]:
-    """Object id -> SceneObject from the JSON sidecar of a mesh file."""
+# ------------------------------------------------------------------------------------------- labels
+
+
+def read_sidecar(path: Path) -> dict[int, SceneObject]:
+    """Object id -> SceneObject from the JSON sidecar of a mesh file (schemas/mesh_sidecar.md)."""
     sidecar = path.with_suffix(".json")
     if not sidecar.is_file():
-        raise SceneError(f"{sidecar}: missing; a plain mesh needs a JSON of object names beside it (see pipeline/scenes/meshes.py)")
+        raise SceneError(f"{sidecar}: missing; labels: sidecar needs a JSON of object names beside the mesh (schemas/mesh_sidecar.md)")
     try:
         entries = json.loads(sidecar.read_text(encoding="utf-8"))["objects"]
         objects = {}
@@ -37,99 +59,207 @@ def read_names(path: Path) -> dict[int, SceneObject]:
             name = str(entry["name"])
             category = int(entry.get("category", category_of(name)))
             objects[int(entry["id"])] = SceneObject(int(entry["id"]), name, category, int(entry.get("region", -1)))
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as error:
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError, UnicodeDecodeError) as error:
         raise SceneError(f"{sidecar}: expected {{\"objects\": [{{\"id\": int, \"name\": str}}, ...]}} ({error}); fix the file") from None
     return objects
 
 
-def _read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    """Vertices, triangles (polygons fanned), face labels and vertex colours (if every `v` has rgb)."""
-    vertices, colors, faces, labels = [], [], [], []
-    label = 0
-    with path.open(encoding="utf-8", errors="replace") as handle:
-        for number, line in enumerate(handle, start=1):
-            fields = line.split()
-            if not fields or fields[0].startswith("#"):
-                continue
-            try:
-                if fields[0] == "v":
-                    vertices.append([float(x) for x in fields[1:4]])
-                    if len(fields) >= 7:
-                        colors.append([float(x) for x in fields[4:7]])
-                elif fields[0] in ("o", "g"):
-                    label = name_label(" ".join(fields[1:]))
-                elif fields[0] == "f":
-                    corners = [int(f.split("/")[0]) for f in fields[1:]]
-                    corners = [c - 1 if c > 0 else len(vertices) + c for c in corners]
-                    if len(corners) < 3:
-                        raise ValueError("a face needs 3 corners")
-                    for k in range(1, len(corners) - 1):
-                        faces.append([corners[0], corners[k], corners[k + 1]])
-                        labels.append(label)
-            except ValueError as error:
-                raise SceneError(f"{path}:{number}: cannot read {fields[0]!r} line ({error}); fix the line") from None
-    rgb = None
-    if colors and len(colors) == len(vertices):
-        values = np.array(colors)
-        rgb = np.clip(np.round(values * (255.0 if values.max() <= 1.0 else 1.0)), 0, 255).astype(np.uint8)
-    return (np.array(vertices, np.float32).reshape(-1, 3), np.array(faces, np.int64).reshape(-1, 3),
-            np.array(labels, np.int64), rgb)
+def _name_category(name: str) -> int:
+    """mpcat40 index of an object name ("chair_3", "Chair.001" -> chair), `misc` when unmapped."""
+    base = re.sub(r"([_.\s-]*\d+)+$", "", name).replace("_", " ").strip()
+    return category_of(base) or category_of(name) or MISC_CATEGORY
 
 
-def _read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    import trimesh
-
-    try:
-        mesh = trimesh.load(str(path), process=False, force="mesh")
-        raw = mesh.metadata["_ply_raw"]
-    except (ValueError, KeyError, IndexError, TypeError, AttributeError, UnicodeDecodeError) as error:
-        raise SceneError(f"{path}: corrupt PLY ({type(error).__name__}: {error}); re-export the file") from None
-    faces = np.asarray(mesh.faces, np.int64)
-    face_data, vertex_data = raw["face"]["data"], raw["vertex"]["data"]
-    labels = np.zeros(len(faces), np.int64)
-    face_key = next((k for k in LABEL_PROPERTIES if k in face_data), None)
-    vertex_key = next((k for k in LABEL_PROPERTIES if k in vertex_data), None)
-    if face_key is not None:
-        per_polygon = np.asarray(face_data[face_key]).reshape(-1).astype(np.int64)
-        corners = face_data["vertex_indices"]
-        sizes = np.array([len(c) for c in corners]) if len(per_polygon) != len(faces) else np.full(len(per_polygon), 3)
-        labels = np.repeat(per_polygon, sizes - 2)
-    elif vertex_key is not None:
-        labels = np.asarray(vertex_data[vertex_key]).reshape(-1).astype(np.int64)[faces[:, 0]]
-    rgb = None
-    if getattr(mesh.visual, "kind", None) == "vertex":
-        rgb = np.asarray(mesh.visual.vertex_colors)[:, :3].astype(np.uint8)
-    return np.asarray(mesh.vertices, np.float32), faces, labels, rgb
+def face_names(parts: list[MeshPart]) -> tuple[list[str], np.ndarray]:
+    """Distinct names and each face's index into them: its OBJ group when the groups name at least two,
+    else its part's name. Per part, not per face, where possible (a scan has millions of faces)."""
+    groups = {g for p in parts for g in (p.face_groups or [])}
+    use_groups = len(groups - {""}) >= 2
+    index = {name: k for k, name in enumerate(sorted(groups))} if use_groups else {}
+    blocks = []
+    for part in parts:
+        if use_groups and part.face_groups is not None:
+            blocks.append(np.array([index[g] for g in part.face_groups], np.int64))
+        else:
+            blocks.append(np.full(len(part.faces), index.setdefault(part.name, len(index)), np.int64))
+    return list(index), np.concatenate(blocks)
 
 
-def _read_glb_labelled(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    mesh = read_glb(path)
-    labels = mesh.vertex_labels[mesh.faces[:, 0]] if mesh.vertex_labels is not None and len(mesh.faces) else np.zeros(len(mesh.faces), np.int64)
-    colors = mesh.vertex_colors if mesh.vertex_colors is not None else mesh.base_colors
-    return mesh.vertices, mesh.faces, labels, colors
+def choose_labels(parts: list[MeshPart], path: Path, mode: str) -> str:
+    """The label source `auto` resolves to for these parts (see module doc)."""
+    if mode != "auto":
+        return mode
+    if path.with_suffix(".json").is_file():
+        return "sidecar"
+    if all(p.face_labels is not None for p in parts):
+        return "properties"
+    if any(face_names(parts)[0]):
+        return "names"
+    return "components"
 
 
-READERS = {".obj": _read_obj, ".ply": _read_ply, ".glb": _read_glb_labelled}
+def _labels_sidecar(parts: list[MeshPart], path: Path) -> tuple[np.ndarray, dict[int, SceneObject], int]:
+    objects = read_sidecar(path)
+    if all(p.face_labels is not None for p in parts):
+        labels = np.concatenate([p.face_labels for p in parts])  # type: ignore[misc]
+    else:
+        names, which = face_names(parts)
+        labels = np.array([name_label(n) for n in names], np.int64)[which]
+    listed = np.isin(labels, np.array(sorted(objects), dtype=np.int64)) & (labels > 0)
+    unknown = len(np.unique(labels[~listed & (labels > 0)]))
+    return np.where(listed, labels, 0), objects, unknown
 
 
-def read_labelled_mesh(path: Path, up_axis: str = "y") -> Scene:
-    """Read a plain mesh with instance labels and its JSON of names (see module doc)."""
+def _labels_properties(parts: list[MeshPart], path: Path) -> tuple[np.ndarray, dict[int, SceneObject], int]:
+    if not all(p.face_labels is not None for p in parts):
+        raise SceneError(f"{path}: labels: properties, but the file has no object_id / instance / label / segment "
+                         "property (PLY) or _OBJECT_ID attribute (glTF); use labels: auto")
+    labels = np.concatenate([p.face_labels for p in parts])  # type: ignore[misc]
+    objects = {int(i): SceneObject(int(i), f"object_{int(i)}", MISC_CATEGORY) for i in np.unique(labels) if i > 0}
+    return labels, objects, 0
+
+
+def _labels_names(parts: list[MeshPart], path: Path) -> tuple[np.ndarray, dict[int, SceneObject], int]:
+    names, which = face_names(parts)
+    if not any(names):
+        raise SceneError(f"{path}: labels: names, but the file names no group, material or node; use labels: components")
+    # Object ids 1..N in name order; an empty name (faces outside any group) is void.
+    ids = {name: k for k, name in enumerate(sorted(n for n in names if n), start=1)}
+    labels = np.array([ids.get(n, 0) for n in names], np.int64)[which]
+    objects = {i: SceneObject(i, name, _name_category(name)) for name, i in ids.items()}
+    return labels, objects, 0
+
+
+def _labels_components(parts: list[MeshPart], path: Path) -> tuple[np.ndarray, dict[int, SceneObject], int]:
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    vertices, faces = _merged_geometry(parts)
+    # Corners at the same position join, so a component is not split by duplicated vertices.
+    _, same = np.unique(vertices, axis=0, return_inverse=True)
+    corners = same.reshape(-1)[faces]
+    edges = np.concatenate([corners[:, [0, 1]], corners[:, [1, 2]]])
+    size = int(corners.max()) + 1
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(size, size))
+    _, component = connected_components(graph, directed=False)
+    _, labels = np.unique(component[corners[:, 0]], return_inverse=True)
+    labels = labels.reshape(-1).astype(np.int64) + 1
+    objects = {int(i): SceneObject(int(i), f"component_{int(i)}", MISC_CATEGORY) for i in np.unique(labels)}
+    return labels, objects, 0
+
+
+LABELLERS = {"sidecar": _labels_sidecar, "properties": _labels_properties, "names": _labels_names,
+             "components": _labels_components}
+
+
+# ------------------------------------------------------------------------------------- appearance
+
+
+def _merged_geometry(parts: list[MeshPart]) -> tuple[np.ndarray, np.ndarray]:
+    offsets = np.cumsum([0] + [len(p.vertices) for p in parts[:-1]])
+    vertices = np.concatenate([p.vertices for p in parts]).astype(np.float32)
+    faces = np.concatenate([p.faces + o for p, o in zip(parts, offsets, strict=True)])
+    return vertices, faces
+
+
+def palette_color(object_id: int) -> np.ndarray:
+    """A stable, distinct-looking colour per object id (golden-ratio hue steps)."""
+    import colorsys
+
+    hue = (object_id * 0.618033988749895) % 1.0
+    return np.round(np.array(colorsys.hsv_to_rgb(hue, 0.55, 0.9)) * 255).astype(np.uint8)
+
+
+def _vertex_colors(parts: list[MeshPart], face_ids: np.ndarray) -> np.ndarray:
+    """(V, 3) colours: the part's vertex or base colour, a palette colour per object where none."""
+    blocks, start = [], 0
+    for part in parts:
+        if part.vertex_colors is not None:
+            block = part.vertex_colors
+        elif part.base_color is not None:
+            block = np.tile(part.base_color, (len(part.vertices), 1))
+        elif part.texture is not None:
+            block = np.tile(part.texture.reshape(-1, 3).mean(axis=0).astype(np.uint8), (len(part.vertices), 1))
+        else:
+            block = np.full((len(part.vertices), 3), 160, np.uint8)
+            ids = face_ids[start: start + len(part.faces)]
+            for object_id in np.unique(ids):
+                block[part.faces[ids == object_id].reshape(-1)] = palette_color(int(object_id))
+        blocks.append(block.astype(np.uint8))
+        start += len(part.faces)
+    return np.concatenate(blocks)
+
+
+def _textured(parts: list[MeshPart], vertex_colors: np.ndarray, faces: np.ndarray) -> dict:
+    """Scene texture fields: each part's texture, and one-pixel textures of the other faces' colours."""
+    textures: list[np.ndarray] = []
+    uv_blocks, material_blocks = [], []
+    face_colors = vertex_colors[faces].mean(axis=1).astype(np.uint8)
+    start = 0
+    for part in parts:
+        count = len(part.faces)
+        if part.texture is not None and part.uvs is not None:
+            material_blocks.append(np.full(count, len(textures), np.int64))
+            textures.append(part.texture)
+            uv_blocks.append(part.uvs[part.faces])
+        else:
+            colors, inverse = np.unique(face_colors[start: start + count], axis=0, return_inverse=True)
+            material_blocks.append(len(textures) + inverse.reshape(-1))
+            textures.extend(c.reshape(1, 1, 3) for c in colors)
+            uv_blocks.append(np.full((count, 3, 2), 0.5, np.float32))
+        start += count
+    if len(textures) > np.iinfo(np.uint16).max:
+        raise SceneError("a textured mesh with more than 65535 distinct plain face colours; bake the colours into a texture")
+    return {"face_uvs": np.concatenate(uv_blocks).astype(np.float32), "textures": textures,
+            "face_material": np.concatenate(material_blocks).astype(np.uint16), "vertex_colors": None}
+
+
+# ----------------------------------------------------------------------------------------- assembly
+
+
+def read_labelled_mesh(path: Path, up_axis: str = "y", labels: str = "auto") -> Scene:
+    """Read a mesh file as a labelled Scene (see module doc); raises SceneError naming the file."""
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in READERS:
-        raise SceneError(f"{path}: unsupported mesh format {suffix!r}; use .obj, .ply or .glb")
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise SceneError(f"{path}: unsupported mesh format {path.suffix!r}; use one of {', '.join(MESH_SUFFIXES)}")
     if not path.is_file():
         raise SceneError(f"{path}: no such file; check the mesh folder")
-    objects = read_names(path)
-    vertices, faces, labels, colors = READERS[suffix](path)
-    listed = np.isin(labels, np.array(sorted(objects), dtype=np.int64)) & (labels > 0)
-    unknown = np.unique(labels[~listed & (labels > 0)])
-    face_ids = np.where(listed, labels, 0).astype(np.uint32)
+    if labels not in LABEL_MODES:
+        raise SceneError(f"{path}: labels {labels!r}: use one of {', '.join(LABEL_MODES)}")
+    parts, short_faces = read_parts(path)
+    mode = choose_labels(parts, path, labels)
+    face_ids, objects, unknown = LABELLERS[mode](parts, path)
+    vertices, faces = _merged_geometry(parts)
+    appearance = {"vertex_colors": _vertex_colors(parts, face_ids)}
+    if any(p.texture is not None for p in parts):
+        appearance = _textured(parts, appearance["vertex_colors"], faces)
+    if not any(p.coloured for p in parts):
+        LOG.warning("%s: no vertex colours, materials or textures; painting each object a palette colour", path)
+    keep = _non_degenerate(vertices, faces)
+    dropped = int((~keep).sum()) + short_faces
+    if dropped:
+        LOG.warning("%s: dropped %d degenerate faces (fewer than 3 corners or zero area)", path, dropped)
+        faces, face_ids = faces[keep], face_ids[keep]
+        if appearance.get("face_uvs") is not None:
+            appearance["face_uvs"], appearance["face_material"] = appearance["face_uvs"][keep], appearance["face_material"][keep]
     present = {int(i) for i in np.unique(face_ids) if i > 0}
     transform = up_axis_transform(up_axis)
+    LOG.info("%s: %d triangles, %d objects from labels: %s", path, len(faces), len(present), mode)
     return Scene(
-        scene_id=path.stem, vertices=to_world(vertices, transform), faces=faces.astype(np.int32), face_object_ids=face_ids,
-        objects={i: o for i, o in sorted(objects.items()) if i in present},
-        vertex_colors=colors if colors is not None else np.full((len(vertices), 3), 180, np.uint8),
-        to_world=transform, source="mesh", path=str(path), unknown_colors=int(len(unknown)),
+        scene_id=path.stem, vertices=to_world(vertices, transform), faces=faces.astype(np.int32),
+        face_object_ids=face_ids.astype(np.uint32), objects={i: o for i, o in sorted(objects.items()) if i in present},
+        to_world=transform, source="mesh", path=str(path), unknown_colors=int(unknown),
+        degenerate_faces=dropped, **appearance,
     )
+
+
+def _non_degenerate(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F,) True for faces with three distinct corners and non-zero area (float64 cross product)."""
+    distinct = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    a = vertices[faces[:, 0]].astype(np.float64)
+    first, second = vertices[faces[:, 1]] - a, vertices[faces[:, 2]] - a
+    # The cross product is zero exactly when the area is; its components are compared, no norm needed.
+    area = first[:, 1] * second[:, 2] != first[:, 2] * second[:, 1]
+    area |= first[:, 2] * second[:, 0] != first[:, 0] * second[:, 2]
+    area |= first[:, 0] * second[:, 1] != first[:, 1] * second[:, 0]
+    return distinct & area

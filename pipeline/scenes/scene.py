@@ -69,6 +69,7 @@ class Scene:
         source: where it came from ("procedural", "hm3dsem", "mesh").
         path: the file it was read from (empty for in-memory scenes).
         unknown_colors: semantic colours of the source that had no row in its table (they are void).
+        degenerate_faces: faces of the source dropped on reading (fewer than 3 corners or zero area).
     """
 
     scene_id: str
@@ -84,6 +85,7 @@ class Scene:
     source: str = "procedural"
     path: str = ""
     unknown_colors: int = 0
+    degenerate_faces: int = 0
 
     @property
     def triangle_count(self) -> int:
@@ -162,9 +164,3 @@ class SceneRef:
     def option(self, key: str, default: object = None) -> object:
         return dict(self.options).get(key, default)
 
-
-def scene_from_path(path: str | Path) -> Scene:
-    """Load a scene from a file path of any supported format (used by the preview/stats commands)."""
-    from pipeline.scenes.sources import load_scene_file
-
-    return load_scene_file(Path(path))

@@ -42,12 +42,13 @@ class SceneSharder(Stage):
         ref = ref_from_row({"scene_id": unit.id, "source": unit.params["source"], "path": unit.params["path"],
                             "options": json.dumps(unit.params["options"], sort_keys=True)})
         scene = ref.load()
-        context.log.info("scene %s: %d triangles, %d objects, %d unknown colours", scene.scene_id,
-                         scene.triangle_count, len(scene.objects), scene.unknown_colors)
+        context.log.info("scene %s: %d triangles, %d objects, %d unknown colours, %d degenerate faces dropped",
+                         scene.scene_id, scene.triangle_count, len(scene.objects), scene.unknown_colors,
+                         scene.degenerate_faces)
         context.write_table("scenes", to_table("scenes", [scene_row(scene, ref)]))
         context.write_table("objects", to_table("objects", object_rows(scene)))
         return UnitResult(info={"triangles": scene.triangle_count, "objects": len(scene.objects),
-                                "unknown_colors": scene.unknown_colors})
+                                "unknown_colors": scene.unknown_colors, "degenerate_faces": scene.degenerate_faces})
 
 
 def scene_row(scene: Scene, ref: SceneRef) -> dict[str, Any]:
@@ -61,7 +62,7 @@ def scene_row(scene: Scene, ref: SceneRef) -> dict[str, Any]:
         "object_count": len(scene.objects), "floor_area": floor_area(scene),
         "void_triangles": int((scene.face_object_ids == 0).sum()), "unknown_colors": int(scene.unknown_colors),
         "to_world": [float(v) for v in np.asarray(scene.to_world, np.float64).reshape(-1)],
-        "room_count": len(regions) if regions else None,
+        "room_count": len(regions) if regions else None, "degenerate_faces": int(scene.degenerate_faces),
     }
 
 

@@ -13,16 +13,12 @@ from collections.abc import Mapping
 from typing import Any
 
 from pipeline.config import Hm3dSemSource, MeshFolderSource, ProceduralSource, SceneSources
+from pipeline.scenes.trimesh_reader import MESH_SUFFIXES
+from pipeline.scenes.procedural import procedural_scene_id
 from pipeline.scenes.scene import Scene, SceneError, SceneRef
 
 SEMANTIC_TXT = ".semantic.txt"
 SEMANTIC_GLB = ".semantic.glb"
-MESH_SUFFIXES = (".obj", ".ply", ".glb")
-
-
-def procedural_scene_id(seed: int) -> str:
-    """Id of the generated house of a seed: `proc-<seed:06d>`."""
-    return f"proc-{seed:06d}"
 
 
 def list_scene_refs(sources: SceneSources) -> list[SceneRef]:
@@ -65,8 +61,9 @@ def _hm3dsem_refs(source: Hm3dSemSource) -> list[SceneRef]:
 
 
 def _mesh_refs(source: MeshFolderSource) -> list[SceneRef]:
-    paths = sorted(p for p in source.root.glob(source.pattern) if p.is_file() and not _is_hm3dsem_part(p))
-    options = (("up_axis", source.up_axis),)
+    paths = sorted(p for p in source.root.glob(source.pattern)
+                   if p.is_file() and p.suffix.lower() in MESH_SUFFIXES and not _is_hm3dsem_part(p))
+    options = (("labels", source.labels), ("up_axis", source.up_axis))
     return [SceneRef(_mesh_scene_id(path), "mesh", str(path), load_mesh, options) for path in paths]
 
 
@@ -102,10 +99,11 @@ def load_hm3dsem(ref: SceneRef) -> Scene:
 
 
 def load_mesh(ref: SceneRef) -> Scene:
-    """Read a plain labelled mesh file (OBJ / PLY / GLB + JSON of names)."""
+    """Read a mesh file through trimesh (OBJ, PLY, GLB / glTF, STL, OFF; see pipeline/scenes/meshes.py)."""
     from pipeline.scenes.meshes import read_labelled_mesh
 
-    return read_labelled_mesh(Path(ref.path), up_axis=str(ref.option("up_axis", "y")))
+    return read_labelled_mesh(Path(ref.path), up_axis=str(ref.option("up_axis", "y")),
+                              labels=str(ref.option("labels", "auto")))
 
 
 _LOADERS = {"procedural": load_procedural, "hm3dsem": load_hm3dsem, "mesh": load_mesh}
@@ -153,7 +151,7 @@ def load_scene_file(path: str | Path, up_axis: str | None = None) -> Scene:
 
         scene = read_labelled_mesh(path, up_axis=up_axis or "y")
     else:
-        raise SceneError(f"{path}: not a scene file; give a .semantic.txt, .glb, .obj or .ply")
+        raise SceneError(f"{path}: not a scene file; give a .semantic.txt or a mesh ({', '.join(MESH_SUFFIXES)})")
     scene.validate()
     return scene
 

@@ -31,6 +31,7 @@ SCENES = register(
         column("unknown_colors", pa.int64(), "distinct semantic colours with no row in the source's table (void)"),
         column("to_world", pa.list_(pa.float64(), 16), "4x4 row-major transform from the file's frame to the world"),
         column("room_count", pa.int32(), "rooms (regions) of the scene; null when the source does not say", nullable=True),
+        column("degenerate_faces", pa.int64(), "faces of the source dropped on reading: fewer than 3 corners or zero area"),
     ],
     row="one scene of the job",
 )

@@ -132,9 +132,10 @@ def test_vsq_is_the_mean_of_vsq_k_over_k() -> None:
     assert summary["VSQ"] == pytest.approx((summary["1"] + summary["3"]) / 2)
 
 
-def test_bucket_without_any_ground_truth_is_null_not_zero() -> None:
+def test_bucket_no_video_adds_to_is_zero_for_every_k_as_published() -> None:
     video = evaluate_arrays(constant_video(4), [masks_of(FULL)] * 4, protocol=TINY)
-    assert summarize([video], TINY.ks)[ZERO_SHOT] == {"1": None, "3": None, "VSQ": None}
+    # The video's FPs exist, but with TP + FN = 0 in the zero-shot bucket it does not add there (step 8).
+    assert summarize([video], TINY.ks)[ZERO_SHOT] == {"1": 0.0, "3": 0.0, "VSQ": 0.0}
 
 
 def test_protocol_rejects_k_longer_than_the_window() -> None:

@@ -58,9 +58,9 @@ def write_plan(run: RunFolder, job: Job) -> None:
                                         "frames": to_table("frames", frames)})
 
 
-def render_tiny_run(root: Path, seed: int = 0) -> RunFolder:
-    """Create, plan (by hand) and render the tiny run at `root`; returns the run."""
-    job = tiny_job(seed)
+def render_tiny_run(root: Path, seed: int = 0, job: Job | None = None) -> RunFolder:
+    """Create, plan (by hand) and render the tiny run at `root` (with `job`'s embodiments if given); returns the run."""
+    job = job or tiny_job(seed)
     run = RunFolder.create(root, job)
     write_plan(run, job)
     stage = RoomRenderer(job)

@@ -26,6 +26,7 @@ from pipeline.io.mvpd.layout import (
     IMAGES_RGB,
     JPEG_QUALITY,
     MAX_MVPD_ID,
+    MVPD_FX,
     PANOMASKS,
     ZERO_SHOT,
     SplitPaths,
@@ -36,8 +37,11 @@ from pipeline.io.mvpd.layout import (
     pose_to_mvpd,
     write_json,
 )
+from pipeline.io.segments import DenseLabels, frame_segments
+from pipeline.io.mvpd.split_files import empty_videos_file, split_rows_of, zero_shot_file
 from pipeline.io.zarr_video import Video, open_video
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.runtime.run_folder import RunFolder, atomic_write_text
+from pipeline.split.selection import has_split, split_rows
 
 log = logging.getLogger(__name__)
 TRAIN_SPLIT = "train"
@@ -57,6 +61,7 @@ class VideoExport:
     annotations: list[dict[str, str]]
     instance_id_map: dict[Any, dict[str, Any]]  # segment id -> entry (str keys once finished)
     empty: bool
+    instances: dict[int, dict[str, Any]] = field(default_factory=dict)  # segment id -> release `instance` entry
 
 
 @dataclass
@@ -68,6 +73,7 @@ class ExportSummary:
     frames: int = 0
     rejected: list[str] = field(default_factory=list)
     seconds: float = 0.0
+    warnings: list[str] = field(default_factory=list)
 
 
 def export_release(run_root: Path, out_root: Path, split: str = "test", embodiment: str | None = None,
@@ -91,7 +97,14 @@ def export_release(run_root: Path, out_root: Path, split: str = "test", embodime
     if paths.folder.exists() and not overwrite:
         raise MvpdExportError(f"{paths.folder}: already exists; delete it or pass --overwrite")
     videos = _video_names(run, chosen)
-    categories = _object_categories(run)
+    split_rows = split_rows_of(run.root, split) if has_split(run.root) else None
+    if split_rows is not None:  # the split stage decides which videos are in the split and their flags
+        videos = [name for name in videos if name in split_rows]
+        if not videos:
+            raise MvpdExportError(f"{run.root / 'splits'}: no video of embodiment {chosen!r} in split {split!r}")
+    objects = _release_objects(run)
+    lit = _lit_companions(run, chosen)
+    warnings = _camera_warnings(run, chosen)
     if on_start is not None:
         on_start(len(videos))
     staging = paths.root / f".{split}.partial-{os.getpid()}"
@@ -100,28 +113,80 @@ def export_release(run_root: Path, out_root: Path, split: str = "test", embodime
     try:
         exported = []
         for name in videos:
-            exported.append(VideoExporter(open_video(run.video_store(chosen, name)), categories, staging).run())
+            extra_rgb = {folder: open_video(run.video_store(other, name)) for folder, other in lit.items()}
+            exporter = VideoExporter(open_video(run.video_store(chosen, name)), objects, staging, extra_rgb,
+                                     first_image_id=sum(len(v.images) for v in exported))
+            exported.append(exporter.run())
             if on_video is not None:
                 on_video(name)
         _write_split_files(staging, split, exported)
+        if split_rows is not None:
+            rows = [split_rows[v.name] for v in exported]
+            write_json(staging / EMPTY_VIDEOS, empty_videos_file(rows))
+            write_json(staging / ZERO_SHOT, zero_shot_file(run.root, split, rows))
+            atomic_write_text(paths.root / f"{split}.txt", "".join(f"{s}\n" for s in sorted({r["scene_id"] for r in rows})))
         _swap_into_place(staging, paths.folder)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    return ExportSummary(paths.folder, len(exported), sum(len(v.images) for v in exported),
-                         [v.name for v in exported if v.empty], time.monotonic() - started)
+    rejected = ([v.name for v in exported if v.empty] if split_rows is None
+                else [v.name for v in exported if not split_rows[v.name]["accepted"]])
+    return ExportSummary(paths.folder, len(exported), sum(len(v.images) for v in exported), rejected,
+                         time.monotonic() - started, warnings)
+
+
+def export_release_splits(run_root: Path, out_root: Path, embodiment: str | None = None, overwrite: bool = False,
+                          on_video: Callable[[str], None] | None = None,
+                          on_start: Callable[[int], None] | None = None) -> list[ExportSummary]:
+    """Every split of a run with a split stage (train, val, test), each as `export_release` writes one."""
+    from pipeline.config import SPLIT_NAMES
+
+    names = sorted({r["split"] for r in split_rows(run_root)}, key=SPLIT_NAMES.index)
+    if not names:
+        raise MvpdExportError(f"{run_root}: the run has no split stage output; give --split NAME to export every "
+                              "video as one split")
+    return [export_release(run_root, out_root, name, embodiment, overwrite, on_video, on_start) for name in names]
 
 
 def _choose_embodiment(run: RunFolder, requested: str | None) -> str:
-    names = [e.name for e in run.job().embodiments]
+    """The embodiment whose masks, depth and colour images are exported (`imagesRGB`).
+
+    Without `requested`: the job's only embodiment, or its only ambient one when every other differs from
+    it only by a spot light (those become `imagesRGB.<watts>` folders, as in the release).
+    """
+    embodiments = run.job().embodiments
+    names = [e.name for e in embodiments]
     if requested is not None:
         if requested not in names:
             raise MvpdExportError(f"{run.root}: no embodiment {requested!r} in the job; "
                                   f"choose one of {', '.join(names)}")
         return requested
-    if len(names) > 1:
-        raise MvpdExportError(f"{run.root}: the job has embodiments {', '.join(names)}; choose one with --embodiment")
-    return names[0]
+    ambient = [e for e in embodiments if e.illumination.kind == "ambient"]
+    if len(names) > 1 and not (len(ambient) == 1 and len(_lit_companions(run, ambient[0].name)) == len(names) - 1):
+        raise MvpdExportError(f"{run.root}: the job has embodiments {', '.join(names)}, which are not one ambient camera "
+                              "and its spot-lit copies; choose one with --embodiment")
+    return ambient[0].name if len(names) > 1 else names[0]
+
+
+def _lit_companions(run: RunFolder, chosen: str) -> dict[str, str]:
+    """`imagesRGB.<watts:010d>` folder -> embodiment, for the spot-lit embodiments that are `chosen` in all but light."""
+    job = run.job()
+    base = job.embodiment(chosen)
+    if base.illumination.kind != "ambient":
+        return {}
+    same = lambda e: e.model_dump(exclude={"name", "illumination"}) == base.model_dump(exclude={"name", "illumination"})  # noqa: E731
+    return {f"{IMAGES_RGB}.{round(e.illumination.power):010d}": e.name for e in job.embodiments
+            if e.name != chosen and e.illumination.kind == "spot" and same(e)}
+
+
+def _camera_warnings(run: RunFolder, chosen: str) -> list[str]:
+    """One line when the camera is not the release's 640x480 / 69 degrees (the authors' loader hard-codes it)."""
+    sensor = run.job().embodiment(chosen).sensor
+    fx, _, cx, cy = sensor.intrinsics()
+    if (sensor.width, sensor.height) == (640, 480) and abs(fx - MVPD_FX) < 1e-3 and (cx, cy) == (320.0, 240.0):
+        return []
+    return [f"embodiment {chosen}: camera {sensor.width}x{sensor.height}, fx {fx:.4g}, is not MVPd's 640x480 / 69 degrees "
+            f"(fx {MVPD_FX}); the authors' loader hard-codes those intrinsics, read ours from the run"]
 
 
 def _video_names(run: RunFolder, embodiment: str) -> list[str]:
@@ -136,30 +201,42 @@ def _video_names(run: RunFolder, embodiment: str) -> list[str]:
     return names
 
 
-def _object_categories(run: RunFolder) -> dict[tuple[str, int], int]:
-    """(scene id, object id) -> mpcat40 category, from the run's `objects` table."""
+def _release_objects(run: RunFolder) -> dict[tuple[str, int], tuple[int, str]]:
+    """(scene id, object id) -> (mpcat40 category, raw name), from the run's `objects` table."""
     table = run.read("objects")
-    columns = (table[c].to_pylist() for c in ("scene_id", "object_id", "mpcat40_index"))
-    return {(scene, int(obj)): int(category) for scene, obj, category in zip(*columns)}
+    columns = (table[c].to_pylist() for c in ("scene_id", "object_id", "mpcat40_index", "raw_name"))
+    return {(scene, int(obj)): (int(category), str(name)) for scene, obj, category, name in zip(*columns)}
 
 
 # ------------------------------------------------------------------------------------------ videos
 
 
 class VideoExporter:
-    """Writes the frame files of one video into the split folder and collects its JSON entries."""
+    """Writes the frame files of one video into the split folder and collects its JSON entries.
 
-    def __init__(self, video: Video, categories: dict[tuple[str, int], int], split_folder: Path):
+    Args:
+        video: the video's Zarr store (masks, depth and the `imagesRGB` colour images).
+        objects: (scene, object id) -> (mpcat40 category, raw name) of the run.
+        split_folder: where `panomasksRGB/`, `imagesRGB/`, `imagesDEPTH/` go.
+        extra_rgb: `imagesRGB.<watts>` folder -> the same video rendered with that spot light.
+        first_image_id: image id of the video's first frame (ids run on over the split's videos).
+    """
+
+    def __init__(self, video: Video, objects: dict[tuple[str, int], tuple[int, str]], split_folder: Path,
+                 extra_rgb: dict[str, Video] | None = None, first_image_id: int = 0):
         attrs = video.attrs
         self.video = video
-        self.categories = categories
+        self.objects = objects
         self.name, self.scene = str(attrs["video_name"]), str(attrs["scene_id"])
         absent = set(attrs.get("absent_arrays", []))
         # An imported MVPd video remembers its original PNG segment ids, so re-exporting reproduces them.
         self.segment_ids = {int(k): int(v) for k, v in attrs.get("mvpd_segment_ids", {}).items()}
         # Arrays an import found absent hold zeros: they are not written as if they were data.
         wanted = {PANOMASKS: True, IMAGES_RGB: "rgb" not in absent, IMAGES_DEPTH: "depth" not in absent}
+        self.extra_rgb = dict(extra_rgb or {})
+        wanted.update({folder: True for folder in self.extra_rgb})
         self.folders = {kind: split_folder / kind / self.name for kind, keep in wanted.items() if keep}
+        self.first_image_id = first_image_id
         self.export = VideoExport(self.name, [], [], {}, False)
 
     def run(self) -> VideoExport:
@@ -172,6 +249,8 @@ class VideoExporter:
             panoptic = np.asarray(self.video.panoptic[start:stop])
             rgb = np.asarray(self.video.rgb[start:stop]) if IMAGES_RGB in self.folders else None
             depth = np.asarray(self.video.depth[start:stop]) if IMAGES_DEPTH in self.folders else None
+            for folder, lit in self.extra_rgb.items():
+                self._write_jpegs(folder, start, np.asarray(lit.rgb[start:stop]))
             for offset in range(stop - start):
                 self._write_frame(start + offset, panoptic[offset], None if rgb is None else rgb[offset],
                                   None if depth is None else depth[offset], poses[start + offset])
@@ -180,35 +259,63 @@ class VideoExporter:
         self.export.instance_id_map = {str(k): instances[k] for k in sorted(instances)}
         return self.export
 
+    def _write_jpegs(self, folder: str, start: int, rgb: np.ndarray) -> None:
+        for offset, image in enumerate(rgb):
+            _write_jpeg(self.folders[folder] / f"{frame_stem(start + offset)}.jpg", image)
+
     def _write_frame(self, frame: int, panoptic: np.ndarray, rgb: np.ndarray | None, depth: np.ndarray | None,
                      pose: np.ndarray) -> None:
-        png_ids, present = _to_mvpd_ids(panoptic, self.scene, self.name, self.categories, self.segment_ids)
+        png_ids, present = _to_mvpd_ids(panoptic, self.scene, self.name, self.objects, self.segment_ids)
         self.export.empty |= float(np.mean(png_ids == 0)) > EMPTY_VOID_FRACTION
-        self.export.instance_id_map.update(present)
+        self.export.instance_id_map.update({k: v["map"] for k, v in present.items()})
+        for segment, entry in present.items():
+            self.export.instances.setdefault(segment, entry["instance"])
         stem = frame_stem(frame)
         Image.fromarray(ids_to_png(png_ids)).save(self.folders[PANOMASKS] / f"{stem}.png", format="PNG")
         if rgb is not None:
-            Image.fromarray(rgb).save(self.folders[IMAGES_RGB] / f"{stem}.jpg", format="JPEG", quality=JPEG_QUALITY,
-                                      subsampling=0)
+            _write_jpeg(self.folders[IMAGES_RGB] / f"{stem}.jpg", rgb)
         if depth is not None:
             _write_depth_png(self.folders[IMAGES_DEPTH] / f"{stem}.png", depth)
         position, rotation = pose_to_mvpd(pose)
-        self.export.images.append({"file_name": f"{stem}.jpg", "camera_position": position,
-                                   "camera_rotation": rotation})
-        self.export.annotations.append({"file_name": f"{stem}.png"})
+        image_id = self.first_image_id + frame
+        height, width = panoptic.shape
+        self.export.images.append({"id": image_id, "width": int(width), "height": int(height),
+                                   "file_name": f"{stem}.jpg", "depth_file_name": f"{stem}.png", "scene_id": self.scene,
+                                   "camera_position": position, "camera_rotation": rotation})
+        self.export.annotations.append({"image_id": image_id, "file_name": f"{stem}.png",
+                                        "segments_info": _segments_info(png_ids, present)})
 
     def _add_unseen_instances(self) -> None:
         """An imported video also lists instances its masks never show (MVPd's maps may): keep them listed."""
         for object_id, segment in self.segment_ids.items():
-            category = self.categories.get((self.scene, object_id), 0)
+            category, _ = self.objects.get((self.scene, object_id), (0, ""))
             if segment not in self.export.instance_id_map and category > 0:
                 self.export.instance_id_map[segment] = {"category_id": category, "scene_name": self.scene,
                                                         "color": object_id_to_color(object_id)}
 
 
-def _to_mvpd_ids(panoptic: np.ndarray, scene: str, video: str, categories: dict[tuple[str, int], int],
+def _write_jpeg(path: Path, rgb: np.ndarray) -> None:
+    Image.fromarray(rgb).save(path, format="JPEG", quality=JPEG_QUALITY, subsampling=0)
+
+
+def _segments_info(png_ids: np.ndarray, present: dict[int, dict[str, Any]]) -> list[dict[str, Any]]:
+    """COCO panoptic `segments_info` of one frame: id, category, area, bbox [x, y, w, h], iscrowd, instance id."""
+    if not present:
+        return []
+    labels = DenseLabels.from_categories({segment: entry["map"]["category_id"] for segment, entry in present.items()})
+    found = frame_segments(png_ids, labels)
+    info = []
+    for k, segment in enumerate(int(v) for v in found.object_ids):
+        x0, y0, x1, y1 = (int(v) for v in found.boxes[k])
+        info.append({"id": segment, "category_id": int(found.categories[k]), "area": int(found.areas[k]),
+                     "bbox": [x0, y0, x1 - x0, y1 - y0], "iscrowd": 0, "instance_id": present[segment]["object_id"]})
+    return info
+
+
+def _to_mvpd_ids(panoptic: np.ndarray, scene: str, video: str, objects: dict[tuple[str, int], tuple[int, str]],
                  segment_ids: dict[int, int]) -> tuple[np.ndarray, dict[int, dict[str, Any]]]:
-    """One frame of object ids -> MVPd segment ids, and the instance entries of the ids present.
+    """One frame of object ids -> MVPd segment ids, and per segment present its `instance_id_map` entry
+    (`map`), its release `instance` entry and its object id.
 
     Objects without an mpcat40 category become void, as in MVPd (its formatter skips category 0).
     """
@@ -218,18 +325,25 @@ def _to_mvpd_ids(panoptic: np.ndarray, scene: str, video: str, categories: dict[
     for index, object_id in enumerate(int(v) for v in unique):
         if object_id == 0:
             continue
-        category = categories.get((scene, object_id))
-        if category is None:
+        found = objects.get((scene, object_id))
+        if found is None:
             raise MvpdExportError(
                 f"video {video}: object {object_id} of scene {scene} is not in the objects table; run the shard stage"
             )
+        category, raw_name = found
         if category == 0:
             continue
         segment = segment_ids.get(object_id, object_id)
         if segment > MAX_MVPD_ID or object_id > MAX_MVPD_ID:
             raise MvpdExportError(f"video {video}: object id {object_id} does not fit MVPd's 24-bit RGB ids")
         mapped[index] = segment
-        present[segment] = {"category_id": category, "scene_name": scene, "color": object_id_to_color(object_id)}
+        color = object_id_to_color(object_id)
+        present[segment] = {
+            "object_id": object_id,
+            "map": {"category_id": category, "scene_name": scene, "color": color},
+            "instance": {"id": segment, "category_id": category, "raw_category": raw_name, "color": color,
+                         "scene_id": scene, "scene_name": scene, "video_name": video},
+        }
     return mapped[inverse.reshape(panoptic.shape)], present
 
 
@@ -245,11 +359,14 @@ def _write_depth_png(path: Path, depth: np.ndarray) -> None:
 def _write_split_files(folder: Path, split: str, exported: list[VideoExport]) -> None:
     """panoptic_<split>.json, empty_videos.json and zero_shot.json of the split, into `folder`."""
     panoptic = {
-        "videos": [{"images": v.images, "video_name": v.name} for v in exported],
+        "videos": [{"video_id": v.name, "video_name": v.name, "images": v.images} for v in exported],
         "annotations": [
-            {"annotations": v.annotations, "video_name": v.name, "instance_id_map": v.instance_id_map} for v in exported
+            {"video_id": v.name, "video_name": v.name, "annotations": v.annotations, "instance_id_map": v.instance_id_map}
+            for v in exported
         ],
         "categories": mvpd_categories(),
+        # One entry per (video, instance it shows): what the authors' zero-shot script reads.
+        "instances": [v.instances[k] for v in exported for k in sorted(v.instances)],
     }
     write_json(folder / f"panoptic_{split}.json", panoptic)
     write_json(folder / EMPTY_VIDEOS, {"accepted": [v.name for v in exported if not v.empty],

@@ -27,6 +27,8 @@ from pydantic import ValidationError
 
 from pipeline.config import ConfigError, Embodiment, Job, MvpdReleaseSource, SceneSources, Sensor
 from pipeline.io.mvpd.layout import (
+    EMPTY_VIDEOS,
+    ZERO_SHOT,
     MVPD_HFOV_DEGREES,
     MvpdFormatError,
     SplitPaths,
@@ -39,6 +41,7 @@ from pipeline.io.mvpd.layout import (
     read_json,
     require,
 )
+from pipeline.io.mvpd.split_files import read_split_flags
 from pipeline.io.segments import DenseLabels, FrameSegments, frame_segments
 from pipeline.io.tables import spec, to_table
 from pipeline.io.zarr_video import VideoWriter
@@ -53,6 +56,7 @@ from pipeline.scenes.categories import STUFF_CATEGORIES, categories
 log = logging.getLogger(__name__)
 STAGE = "import"
 DEFAULT_EMBODIMENT = "mvpd"
+SPLIT_FLAGS_UNIT = "split-flags"  # the unit turning empty_videos.json / zero_shot.json into `splits` rows
 OPTIONAL_ARRAYS = ("rgb", "depth")
 
 
@@ -158,7 +162,7 @@ class MvpdImporter(Stage):
     """
 
     name = STAGE
-    datasets = ("videos", "frames", "frame_stats", "segments", "objects")
+    datasets = ("videos", "frames", "frame_stats", "segments", "objects", "splits", "zero_shot_instances")
 
     def __init__(self, job: Job, videos: list[ReleaseVideo] | None = None):
         super().__init__(job)
@@ -195,7 +199,11 @@ class MvpdImporter(Stage):
         if clash:
             raise MvpdFormatError(f"{self.paths.annotations}: {clash[0]} is both a video name and a scene id; "
                                   "rename the scene")
-        return sorted(videos + scenes, key=lambda u: u.id)
+        # The split files (empty_videos.json, zero_shot.json) -> the run's `splits` flags, one unit.
+        files = [self.paths.folder / name for name in (EMPTY_VIDEOS, ZERO_SHOT)]
+        flags = Unit(SPLIT_FLAGS_UNIT, {"kind": "split", "files": [f.read_text() if f.is_file() else "" for f in files],
+                                        "videos": sorted(v.video_name for v in self.videos)})
+        return sorted([*videos, *scenes, flags], key=lambda u: u.id)
 
     def settings(self) -> dict[str, Any]:
         """What every unit's output depends on besides its params: the camera, the shard size, the source."""
@@ -206,6 +214,11 @@ class MvpdImporter(Stage):
 
     def run_unit(self, unit: Unit, context: UnitContext) -> UnitResult:
         """Stage one video's store and table parts, or one scene's objects part."""
+        if unit.params["kind"] == "split":
+            rows, instances = read_split_flags(self.paths.folder, self.paths.split, unit.params["videos"])
+            context.write_table("splits", _table("splits", [{**r, "embodiment": self.embodiment.name} for r in rows]))
+            context.write_table("zero_shot_instances", _table("zero_shot_instances", instances))
+            return UnitResult(info={"rejected": sum(not r["accepted"] for r in rows)})
         if unit.params["kind"] == "objects":
             rows = [_object_row(unit.params["scene_id"], obj, category) for obj, category in unit.params["objects"]]
             context.write_table("objects", _table("objects", rows))

@@ -18,6 +18,7 @@ from pipeline.scenes.categories import STUFF_CATEGORIES, categories
 
 # MVPd's camera (DESIGN.md): 640 x 480, 69 degrees horizontal field of view; imports keep the files' size.
 MVPD_HFOV_DEGREES = 69.0
+MVPD_FX = 465.6029  # the focal length the authors' loader hard-codes (fx = fy; cx = 320, cy = 240)
 # The MVPd rule for empty videos: any frame with more than this fraction of void pixels.
 EMPTY_VOID_FRACTION = 0.5
 # Fixed JPEG settings so that two exports of the same run are byte-identical.
@@ -129,11 +130,12 @@ def object_id_to_color(object_id: int) -> list[int]:
 
 
 def mvpd_categories() -> list[dict[str, Any]]:
-    """The `categories` list of a panoptic JSON: mpcat40 1..40; wall, floor and ceiling are stuff."""
+    """The `categories` list of a panoptic JSON: mpcat40 1..40 (41 `unlabeled` is left out, as the authors'
+    builder stops at 40); wall, floor and ceiling are stuff."""
     return [
         {"id": c.index, "name": c.name, "isthing": 0 if c.index in STUFF_CATEGORIES else 1, "color": list(c.rgb)}
         for index, c in sorted(categories().items())
-        if index > 0
+        if 0 < index <= 40
     ]
 
 

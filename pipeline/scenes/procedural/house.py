@@ -14,6 +14,7 @@ import numpy as np
 
 from pipeline.scenes.categories import category_of
 from pipeline.scenes.procedural import layout as lay
+from pipeline.scenes.procedural import procedural_scene_id
 from pipeline.scenes.procedural import stairs
 from pipeline.scenes.procedural.furniture import Piece
 from pipeline.scenes.procedural.geometry import (Box, Cylinder, Ellipsoid, MeshAccumulator, add_boxes, add_cylinders,
@@ -218,8 +219,6 @@ def tessellate(plan: HousePlan, detail: float, scene_id: str) -> Scene:
 
 def generate_house(seed: int, detail: float = 0.1, min_rooms: int = 3, max_rooms: int = 8, floors: int = 1) -> Scene:
     """The furnished house of `seed` as a Scene (id `proc-<seed:06d>`), deterministic."""
-    from pipeline.scenes.sources import procedural_scene_id
-
     if floors not in (1, 2):
         raise SceneError(f"procedural house {seed}: floors={floors}; use 1 or 2 (scenes.procedural.floors)")
     if not 0 < detail <= 1:

@@ -1,0 +1,272 @@
+"""Placed geometries of any mesh file trimesh reads, with what labels and colours them.
+
+The one place files are parsed (OBJ + MTL, PLY, GLB / glTF, STL, OFF): `read_parts` gives each node
+of the file's scene graph as a `MeshPart` (node transform applied) with its label properties, OBJ
+group names, vertex colours, material colour or texture. Both the `meshes:` source (meshes.py) and
+the HM3DSem reader (glb.py -> hm3dsem.py) build on it. trimesh parses a 1 M-triangle GLB in about a
+fifth of the time the project's former hand-written GLB reader took (benchmarks/bench_mesh_readers.py).
+Anything unreadable raises SceneError naming the file (and the OBJ line where one is to blame).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from pipeline.scenes.scene import SceneError
+
+if TYPE_CHECKING:
+    import trimesh
+
+LOG = logging.getLogger(__name__)
+
+MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
+LABEL_PROPERTIES = ("object_id", "instance", "label", "segment")
+GLB_MAGIC = b"glTF"
+# Required glTF extensions that trimesh decodes or that change nothing this project reads.
+GLTF_EXTENSIONS = frozenset({"KHR_materials_unlit", "KHR_texture_transform", "KHR_materials_pbrSpecularGlossiness"})
+
+
+@dataclass
+class MeshPart:
+    """One placed geometry of the file, in the file's frame (node transform applied).
+
+    Attributes:
+        name: the OBJ material or the glTF node name ("" for a single unnamed mesh).
+        vertices: (V, 3) float64 positions.
+        faces: (F, 3) int64 triangles.
+        face_labels: (F,) int64 label property per face, or None.
+        face_groups: the OBJ `o` / `g` name of each face, or None.
+        vertex_colors: (V, 3) uint8, or None.
+        base_color: (3,) uint8 material colour, or None.
+        texture: (H, W, 3) uint8 image with `uvs` ((V, 2), v up), or None.
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_labels: np.ndarray | None = None
+    face_groups: list[str] | None = None
+    vertex_colors: np.ndarray | None = None
+    base_color: np.ndarray | None = None
+    texture: np.ndarray | None = None
+    uvs: np.ndarray | None = None
+
+    @property
+    def coloured(self) -> bool:
+        """True when the file gives this part any colour (vertex colours, a material colour or a texture)."""
+        return self.vertex_colors is not None or self.base_color is not None or self.texture is not None
+
+
+# ------------------------------------------------------------------------------------------ reading
+
+
+def _load_trimesh(path: Path) -> trimesh.Scene:
+    import trimesh  # lazily: about 0.5 s to import, and listing scenes never needs it
+
+    if path.suffix.lower() in (".glb", ".gltf"):
+        check_gltf(path)
+    try:
+        # One geometry per material keeps OBJ `usemtl` groups apart; process=False keeps vertex order.
+        return trimesh.load_scene(str(path), process=False)
+    except (ValueError, KeyError, IndexError, TypeError, AttributeError, UnicodeDecodeError, OSError,
+            NotImplementedError, struct.error) as error:
+        where = _first_bad_obj_line(path) if path.suffix.lower() == ".obj" else None
+        if where is not None:
+            raise SceneError(f"{path}:{where[0]}: cannot read {where[1]!r} line; fix the line") from None
+        if path.suffix.lower() == ".glb":
+            raise _corrupt_glb(path, f"{type(error).__name__}: {error}") from None
+        raise SceneError(f"{path}: trimesh cannot read the mesh ({type(error).__name__}: {error}); re-export the file") from None
+
+
+def _corrupt_glb(path: Path, what: str) -> SceneError:
+    return SceneError(f"{path}: corrupt GLB ({what}); re-export or re-download the file")
+
+
+def check_gltf(path: Path) -> None:
+    """Check a GLB's header and chunk sizes and a glTF's JSON, and refuse required extensions that
+    trimesh does not decode (it would read such files as empty or wrong)."""
+    if path.suffix.lower() == ".glb":
+        data = path.read_bytes()
+        if len(data) < 20 or data[:4] != GLB_MAGIC:
+            raise _corrupt_glb(path, "no glTF header")
+        version, length = struct.unpack_from("<II", data, 4)
+        if version != 2:
+            raise SceneError(f"{path}: glTF version {version}; only glTF 2.0 GLB files are supported, re-export as glTF 2")
+        if length > len(data):
+            raise _corrupt_glb(path, f"header says {length} bytes, file has {len(data)}")
+        offset, document_bytes = 12, b""
+        while offset + 8 <= length:
+            chunk_length, chunk_type = struct.unpack_from("<II", data, offset)
+            if offset + 8 + chunk_length > length:
+                raise _corrupt_glb(path, "truncated chunk")
+            if chunk_type == 0x4E4F534A and not document_bytes:  # "JSON"
+                document_bytes = data[offset + 8: offset + 8 + chunk_length]
+            offset += 8 + chunk_length
+    else:
+        document_bytes = path.read_bytes()
+    try:
+        document = json.loads(document_bytes.decode("utf-8"))
+        required = document.get("extensionsRequired", [])
+    except (UnicodeDecodeError, json.JSONDecodeError, AttributeError) as error:
+        raise _corrupt_glb(path, f"JSON chunk: {error}") from None
+    unsupported = sorted(set(required) - GLTF_EXTENSIONS)
+    if unsupported:
+        raise SceneError(f"{path}: needs glTF extension {', '.join(unsupported)}, which the reader does not decode; "
+                         "use the uncompressed files (HM3D's plain .glb, not .basis.glb)")
+
+
+def _first_bad_obj_line(path: Path) -> tuple[int, str] | None:
+    """(line number, keyword) of the first `v` / `vt` / `vn` line whose numbers do not parse."""
+    with path.open(encoding="utf-8", errors="replace") as handle:
+        for number, line in enumerate(handle, start=1):
+            fields = line.split()
+            if fields and fields[0] in ("v", "vt", "vn"):
+                try:
+                    [float(x) for x in fields[1:]]
+                except ValueError:
+                    return number, fields[0]
+    return None
+
+
+def _image_rgb(image: object) -> np.ndarray | None:
+    if image is None:
+        return None
+    return np.asarray(image.convert("RGB"), np.uint8)  # type: ignore[attr-defined]
+
+
+def _appearance(geometry: object) -> dict:
+    """Colour fields of one trimesh geometry: vertex colours, a texture with UVs, or a base colour."""
+    visual = geometry.visual  # type: ignore[attr-defined]
+    kind = getattr(visual, "kind", None)
+    if kind == "vertex":
+        return {"vertex_colors": np.asarray(visual.vertex_colors)[:, :3].astype(np.uint8)}
+    if kind == "face":
+        # Per-face colours: each face's colour on its corners (shared corners take one of them).
+        colors = np.zeros((len(geometry.vertices), 3), np.uint8)  # type: ignore[attr-defined]
+        colors[geometry.faces.reshape(-1)] = np.repeat(np.asarray(visual.face_colors)[:, :3], 3, axis=0)  # type: ignore[attr-defined]
+        return {"vertex_colors": colors}
+    material = getattr(visual, "material", None)
+    if material is None:
+        return {}
+    image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
+    uv = getattr(visual, "uv", None)
+    if image is not None and uv is not None and len(uv) == len(geometry.vertices):  # type: ignore[attr-defined]
+        return {"texture": _image_rgb(image), "uvs": np.asarray(uv, np.float32)[:, :2]}
+    factor = getattr(material, "baseColorFactor", None)
+    if factor is None:
+        factor = getattr(material, "diffuse", None)
+    return {"base_color": np.asarray(factor, np.uint8)[:3]} if factor is not None else {}
+
+
+def _ply_labels(geometry: object) -> np.ndarray | None:
+    """Per-face labels from a PLY face (or vertex) label property, or None."""
+    raw = getattr(geometry, "metadata", {}).get("_ply_raw")
+    if not raw:
+        return None
+    faces = np.asarray(geometry.faces)  # type: ignore[attr-defined]
+    face_data, vertex_data = raw.get("face", {}).get("data", {}), raw.get("vertex", {}).get("data", {})
+    face_key = next((k for k in LABEL_PROPERTIES if k in face_data), None)
+    if face_key is not None:
+        per_polygon = np.asarray(face_data[face_key]).reshape(-1).astype(np.int64)
+        if len(per_polygon) == len(faces):
+            return per_polygon
+        sizes = np.array([len(c) for c in face_data["vertex_indices"]])
+        return np.repeat(per_polygon, np.maximum(sizes - 2, 0))
+    vertex_key = next((k for k in LABEL_PROPERTIES if k in vertex_data), None)
+    if vertex_key is not None:
+        return np.asarray(vertex_data[vertex_key]).reshape(-1).astype(np.int64)[faces[:, 0]]
+    return None
+
+
+def _attribute_labels(geometry: object) -> np.ndarray | None:
+    """Per-face labels from a glTF `_OBJECT_ID` (or `object_id`) vertex attribute, or None."""
+    attributes = getattr(geometry, "vertex_attributes", {}) or {}
+    key = next((k for k in ("_OBJECT_ID", "_object_id", "object_id") if k in attributes), None)
+    if key is None:
+        return None
+    per_vertex = np.asarray(attributes[key]).reshape(len(attributes[key]), -1)[:, 0]
+    return np.rint(per_vertex).astype(np.int64)[np.asarray(geometry.faces)[:, 0]]  # type: ignore[attr-defined]
+
+
+@dataclass
+class ObjFaces:
+    """What trimesh does not keep of an OBJ: each triangle's `o` / `g` name, per material, in file order."""
+
+    groups: dict[str, list[str]]
+    short_faces: int  # `f` lines with fewer than 3 corners (trimesh drops them)
+    any_group: bool
+
+
+def _scan_obj_faces(path: Path) -> ObjFaces:
+    """Each triangle's group name, in the order trimesh emits them (per material, then file order)."""
+    groups: dict[str, list[str]] = {}
+    group, material, short, any_group = "", "", 0, False
+    with path.open(encoding="utf-8", errors="replace") as handle:
+        for line in handle:
+            head = line[:7]
+            if head.startswith(("f ", "f\t")):
+                corners = len(line.split()) - 1
+                if corners < 3:
+                    short += 1
+                else:
+                    groups.setdefault(material, []).extend([group] * (corners - 2))
+            elif head.startswith(("o ", "g ", "o\t", "g\t")):
+                group, any_group = line[2:].strip(), True
+            elif head.startswith("usemtl"):
+                material = line[6:].strip()
+    return ObjFaces(groups, short, any_group)
+
+
+def read_parts(path: Path) -> tuple[list[MeshPart], int]:
+    """Every placed geometry of a mesh file (file frame) and the count of faces with < 3 corners."""
+    if not path.is_file():
+        raise SceneError(f"{path}: no such file; check the scene folder holds it")
+    scene = _load_trimesh(path)
+    obj = _scan_obj_faces(path) if path.suffix.lower() == ".obj" else None
+    parts = []
+    for node in scene.graph.nodes_geometry:
+        matrix, geometry_name = scene.graph[node]
+        geometry = scene.geometry[geometry_name]
+        if not hasattr(geometry, "faces") or len(geometry.faces) == 0:
+            continue  # point clouds and lines carry no surface
+        vertices = np.asarray(geometry.vertices, np.float64)
+        if not np.array_equal(matrix, np.eye(4)):
+            vertices = vertices @ np.asarray(matrix)[:3, :3].T + np.asarray(matrix)[:3, 3]
+        faces = np.asarray(geometry.faces, np.int64)
+        labels = _ply_labels(geometry)
+        labels = labels if labels is not None else _attribute_labels(geometry)
+        name = _part_name(path, geometry, str(node), obj)
+        part = MeshPart(name, vertices, faces, face_labels=labels, **_appearance(geometry))
+        if obj is not None and obj.any_group:
+            part.face_groups = _obj_groups_of(path, obj, geometry, len(faces))
+        parts.append(part)
+    if not parts:
+        raise SceneError(f"{path}: the mesh is empty (0 triangles); check the file was exported with geometry")
+    return parts, (obj.short_faces if obj is not None else 0)
+
+
+def _part_name(path: Path, geometry: object, node: str, obj: ObjFaces | None) -> str:
+    """The name a part carries: its OBJ material, its glTF node; "" for single-mesh formats."""
+    if obj is not None:
+        material = getattr(getattr(geometry.visual, "material", None), "name", None)  # type: ignore[attr-defined]
+        return str(material) if material and obj.groups.keys() - {""} else ""
+    return node if path.suffix.lower() in (".glb", ".gltf") else ""
+
+
+def _obj_groups_of(path: Path, obj: ObjFaces, geometry: object, count: int) -> list[str] | None:
+    """The `o` / `g` name of each triangle trimesh gave for one material, or None (with a warning) when
+    the file's `f` lines do not give the same number of triangles (then material names label it)."""
+    material = getattr(getattr(geometry.visual, "material", None), "name", None) or ""  # type: ignore[attr-defined]
+    groups = obj.groups.get(str(material)) if len(obj.groups) > 1 else next(iter(obj.groups.values()), [])
+    if groups is None or len(groups) != count:
+        LOG.warning("%s: material %r has %d triangles but its `f` lines give %d; its `o` / `g` names are ignored",
+                    path, material, count, len(groups or []))
+        return None
+    return groups
