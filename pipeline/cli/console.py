@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import re
 from contextlib import contextmanager
 from typing import Iterator, NoReturn
 
+import click
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from typer.core import TyperGroup
 
 from pipeline.runtime.executor import StagePlan, StageReport
 from pipeline.runtime.runner import Observer
@@ -17,12 +20,40 @@ console = Console(highlight=False)
 errors = Console(stderr=True, highlight=False)
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+# Plain (click) help everywhere (`rich_markup_mode=None` on each Typer): option texts in full however long,
+# `[default: ...]` kept literally (rich markup would eat it as a tag), flags shown as flags, `-h` as `--help`.
+HELP_SETTINGS = {"help_option_names": ["-h", "--help"], "show_default": True}
+
+
+class FullHelpGroup(TyperGroup):
+    """Lists each command with its whole first paragraph (wrapped), not click's 45-character cut."""
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = []
+        for name in self.list_commands(ctx):
+            command = self.get_command(ctx, name)
+            if command is not None and not command.hidden:
+                text = command.short_help or (command.help or "").split("\n\n")[0]
+                rows.append((name, " ".join(text.split())))
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+
 
 
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
     """Print a one-line error and exit (2 = unusable input)."""
     errors.print(f"[bold red]error:[/] {message}", soft_wrap=True)
     raise typer.Exit(code)
+
+
+def check_plain_name(value: str, option: str) -> str:
+    """`value` when it is a plain file name (letters, digits, `_`, `-`, `.`; not `.` or `..`), else a
+    one-line exit 2: a name from the command line never becomes a path outside the folder it names."""
+    if not re.fullmatch(r"[A-Za-z0-9_.\-]+", value) or set(value) == {"."}:
+        fail(f"{option} {value!r}: not a plain name; use letters, digits, '_', '-' and '.' (no '/' or '..')")
+    return value
 
 
 @contextmanager

@@ -51,8 +51,9 @@ def export_command(
     overwrite: Annotated[bool, typer.Option("--overwrite", help="replace an existing <mvpd>/<split>")] = False,
 ) -> None:
     """Write a run's videos as an MVPd release split: JPEG colour, uint16 depth PNG, COCO panoptic PNG, JSON."""
-    from pipeline.cli.console import console, fail
+    from pipeline.cli.console import check_plain_name, console, fail
 
+    check_plain_name(split, "--split")
     try:
         with _video_progress("export") as (on_start, on_video):
             summary = export_release(run_dir, mvpd, split, embodiment, overwrite, on_video=on_video, on_start=on_start)
@@ -75,6 +76,9 @@ def import_command(
     and evaluate work on it. Exit 0 when every unit is done, 1 when some failed (listed), 2 on unusable input."""
     from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, stage_progress
 
+    splits = sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else []
+    if root.is_dir() and split not in splits:  # compared with the listing, never joined into a path
+        fail(f"{root}: no split folder {split!r}; it holds {', '.join(splits) or 'no folders'}")
     try:
         with stage_progress() as observer:
             summary = import_release(root, split, run_dir, embodiment, all_units, address,

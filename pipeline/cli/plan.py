@@ -7,8 +7,11 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
+from pipeline.cli.console import HELP_SETTINGS, FullHelpGroup
+
 console = Console()
-plan_app = typer.Typer(no_args_is_help=True, help="Navigable areas and camera trajectories.")
+plan_app = typer.Typer(cls=FullHelpGroup, rich_markup_mode=None, context_settings=HELP_SETTINGS, no_args_is_help=True,
+                       help="Navigable areas and camera trajectories.")
 
 
 @plan_app.command("preview")

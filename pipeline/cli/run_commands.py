@@ -206,12 +206,25 @@ def logs(
         run = RunFolder.open(run_dir)
     except USAGE_ERRORS as error:
         fail(str(error))
-    found = sorted((run.root / "logs").glob(f"{stage or '*'}/{unit}.log"))
+    found = _unit_logs(run.root / "logs", unit, stage)
     if not found:
-        fail(f"{run.root / 'logs'}: no log for unit {unit!r}; unit ids are listed by `mvpd status` and `_state/`")
+        fail(f"{run.root / 'logs'}: no log for unit {unit!r}{f' of stage {stage!r}' if stage else ''}; "
+             "unit ids are listed by `mvpd status` and `_state/`")
     for path in found:
-        console.rule(str(path.relative_to(run.root)))
-        typer.echo(path.read_text(encoding="utf-8"), nl=False)
+        typer.echo(f"== {path.relative_to(run.root)} ==")
+        typer.echo(path.read_text(encoding="utf-8", errors="replace"), nl=False)
+
+
+def _unit_logs(logs_folder: Path, unit: str, stage: str | None) -> list[Path]:
+    """The log files named exactly `<unit>.log` in the stage folders of `logs/` (all, or the one named).
+
+    Names are compared with the folder listing, never joined into a path: `../x` or `/etc/x` finds nothing.
+    """
+    if not logs_folder.is_dir():
+        return []
+    wanted = f"{unit}.log"
+    return sorted(entry for folder in sorted(logs_folder.iterdir()) if folder.is_dir() and stage in (None, folder.name)
+                  for entry in folder.iterdir() if entry.name == wanted and entry.is_file())
 
 
 def schemas(

@@ -8,10 +8,11 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from pipeline.cli.console import console, fail
+from pipeline.cli.console import HELP_SETTINGS, FullHelpGroup, console, fail
 from pipeline.scenes.scene import SceneError
 
-scenes_app = typer.Typer(no_args_is_help=True, help="Generate, preview and describe scenes.")
+scenes_app = typer.Typer(cls=FullHelpGroup, rich_markup_mode=None, context_settings=HELP_SETTINGS, no_args_is_help=True,
+                         help="Generate, preview and describe scenes.")
 
 
 def register(app: typer.Typer) -> None:
