@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import signal
 from contextlib import contextmanager
 from typing import Iterator, NoReturn
 
@@ -13,6 +14,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from typer.core import TyperGroup
 
 from pipeline.runtime.executor import StagePlan, StageReport
+from pipeline.runtime.ray_session import got_sigterm
 from pipeline.runtime.runner import Observer
 from pipeline.runtime.status import UnitOutcome
 
@@ -20,6 +22,7 @@ console = Console(highlight=False)
 errors = Console(stderr=True, highlight=False)
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+EXIT_TERMINATED = 128 + signal.SIGTERM  # the shell's convention for "killed by SIGTERM"
 # Plain (click) help everywhere (`rich_markup_mode=None` on each Typer): option texts in full however long,
 # `[default: ...]` kept literally (rich markup would eat it as a tag), flags shown as flags, `-h` as `--help`.
 HELP_SETTINGS = {"help_option_names": ["-h", "--help"], "show_default": True}
@@ -39,7 +42,26 @@ class FullHelpGroup(TyperGroup):
             with formatter.section("Commands"):
                 formatter.write_dl(rows)
 
+    def invoke(self, ctx: click.Context) -> object:
+        """Run the command; SIGTERM stops it like Ctrl-C (context managers unwind, the run lock is
+        released) and exits 143 with one line instead of a stack dump."""
+        try:
+            return super().invoke(ctx)
+        except SystemExit as exit_:  # ray.init's own SIGTERM handler (active while Ray starts) calls sys.exit(15)
+            if exit_.code != signal.SIGTERM:
+                raise
+            terminated()
+        except KeyboardInterrupt:  # DriverTerminated, or the KeyboardInterrupt Ray made of it
+            if not got_sigterm():
+                raise
+            terminated()
 
+
+def terminated() -> NoReturn:
+    """Stop after SIGTERM: one line on stderr, exit 143."""
+    errors.print("stopped: the process got SIGTERM; finished units are kept, rerun the same command to go on",
+                 soft_wrap=True)
+    raise typer.Exit(EXIT_TERMINATED)
 
 
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:

@@ -9,6 +9,7 @@ import typer
 
 from pipeline.cli import evaluate, mvpd_io, plan, render, run_commands, scenes
 from pipeline.cli.console import HELP_SETTINGS, FullHelpGroup
+from pipeline.runtime.ray_session import stop_on_sigterm
 
 app = typer.Typer(cls=FullHelpGroup, no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
                   rich_markup_mode=None, context_settings=HELP_SETTINGS,
@@ -30,7 +31,12 @@ def main(
                                                help="print the version and exit")] = False,
 ) -> None:
     """Embodiment-configurable RGB-D video segmentation datasets (MVPd) on Ray."""
+    stop_on_sigterm()
 
 
 for area in (run_commands, scenes, plan, render, evaluate, mvpd_io):
     area.register(app)
+
+
+if __name__ == "__main__":
+    app()

@@ -11,7 +11,7 @@ import typer
 from rich.table import Table
 
 from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, stage_progress
-from pipeline.config import ConfigError, json_schemas, load_job
+from pipeline.config import ConfigError, Job, load_job
 from pipeline.io.dataset_stats import StatsError, dataset_stats, write_stats_picture
 from pipeline.io.query import QueryError, query, write_result
 from pipeline.runtime.executor import StageOrderError
@@ -61,6 +61,20 @@ def _parse_stages(stages: str | None) -> list[str] | None:
     return sorted(names, key=JOB_STAGES.index)
 
 
+def load_checked_job(job_file: Path) -> Job:
+    """The job of `job_file`, with its scene sources listed: a source that names a missing scene or holds
+    none is refused here, before any run folder is created (ConfigError, one line)."""
+    from pipeline.scenes.scene import SceneError
+    from pipeline.scenes.sources import list_scene_refs
+
+    job = load_job(job_file)
+    try:
+        list_scene_refs(job.scenes)
+    except SceneError as error:
+        raise ConfigError(f"{job_file}: {error}") from None
+    return job
+
+
 def submit_command(
     job_file: Annotated[Path, typer.Argument(help="job YAML file")],
     run_dir: Annotated[Optional[Path], typer.Option("--run-dir", help="run folder (default runs/<job name>)")] = None,
@@ -70,7 +84,7 @@ def submit_command(
     """Run a job: every stage, only the units that are not already done with the same config."""
     chosen = _parse_stages(stages)
     try:
-        job = load_job(job_file)
+        job = load_checked_job(job_file)
         with stage_progress() as observer:
             report = submit(job, run_dir or Path("runs") / job.name, chosen, address, observer)
     except USAGE_ERRORS as error:
@@ -87,7 +101,7 @@ def demo(
 
     try:
         with stage_progress() as observer:
-            report = submit(load_job(DEMO_JOB), run_dir, None, address, observer)
+            report = submit(load_checked_job(DEMO_JOB), run_dir, None, address, observer)
         if report.failed:
             _finish(report)
         pictures = write_overview(RunFolder.open(run_dir), run_dir / "previews")

@@ -31,6 +31,10 @@ class RunLockedError(RuntimeError):
     """Another live run holds the run folder."""
 
 
+class RunFolderNotWritableError(RunLockedError):
+    """The lock cannot be created: the run folder is on a read-only file system or not writable."""
+
+
 class RunLock:
     """Context manager holding `_state/lock.json` for the duration of a run."""
 
@@ -42,7 +46,18 @@ class RunLock:
         self._started = time.time()
 
     def __enter__(self) -> "RunLock":
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._take()
+        except OSError as error:
+            raise RunFolderNotWritableError(f"{self.path.parent.parent}: cannot create the run lock "
+                                            f"({error.strerror}); choose a writable run folder") from None
+        self._thread = threading.Thread(target=self._beat, daemon=True)
+        self._thread.start()
+        return self
+
+    def _take(self) -> None:
+        """Create the lock, or take it over when its owner is provably gone; else RunLockedError."""
         with self._guarded():
             if not self._try_create():
                 holder = self._holder()
@@ -51,9 +66,6 @@ class RunLock:
                 self.path.unlink(missing_ok=True)  # its owner is gone; the guard keeps others out meanwhile
                 if not self._try_create():
                     raise RunLockedError(f"{self.path}: another run took the lock just now; try again")
-        self._thread = threading.Thread(target=self._beat, daemon=True)
-        self._thread.start()
-        return self
 
     def __exit__(self, *exc: object) -> None:
         self.release()
