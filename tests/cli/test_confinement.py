@@ -48,6 +48,7 @@ def make_run(root: Path) -> RunFolder:
     write_part(run.root, "frame_stats", "v", _rows("frame_stats", 3, **key, visible_objects=2, void_fraction=0.25))
     write_part(run.root, "videos", "v", _rows("videos", 1, **key, scene_id="s", frames=3))
     write_part(run.root, "segments", "v", _rows("segments", 3, **key, object_id=7, category=3, area=10))
+    (run.root / "videos" / "e").mkdir(parents=True)  # an embodiment folder a `*/<name>.zarr` pattern would walk from
     (run.root / "logs" / "shard").mkdir(parents=True)
     (run.root / "logs" / "shard" / "s.log").write_text("shard of s\n")
     return run
@@ -126,7 +127,7 @@ def test_logs_accepts_only_unit_ids_of_the_run(run, unit, stage):
     assert invoke("logs", run.root, "s").output.endswith("shard of s\n")
 
 
-@pytest.mark.parametrize("video", ["../../other/videos/e/v", "/abs/v", "..", "e/v"])
+@pytest.mark.parametrize("video", ["../../../other/videos/e/v", "/abs/v", "..", "e/v"])
 def test_preview_accepts_only_video_names_of_the_run(tmp_path, run, video):
     other = make_run(tmp_path / "other")
     (other.root / "videos" / "e" / "v.zarr").mkdir(parents=True)  # a store the traversal would reach
@@ -140,7 +141,7 @@ def test_reader_finds_no_video_outside_the_run(tmp_path, run):
 
     (tmp_path / "videos" / "e" / "v.zarr").mkdir(parents=True)
     with pytest.raises(VideoNotFoundError):
-        load_video(run, "../../videos/e/v", "e")
+        load_video(run, "../../../videos/e/v", "e")
 
 
 @pytest.mark.parametrize("split", ["../escape", "/tmp/x", ".."])
