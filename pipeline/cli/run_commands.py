@@ -10,7 +10,7 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, stage_progress
+from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, print_table, stage_progress
 from pipeline.config import ConfigError, Job, load_job
 from pipeline.io.dataset_stats import StatsError, dataset_stats, write_stats_picture
 from pipeline.io.query import QueryError, query, write_result
@@ -141,7 +141,7 @@ def status(run_dir: Annotated[Path, typer.Argument(help="run folder")]) -> None:
     for state in states:
         table.add_row(state.stage, str(state.total), str(len(state.done)), str(len(state.stale)),
                       str(len(state.failed)), str(len(state.pending)) + (f" ({state.waiting_for})" if state.waiting_for else ""))
-    console.print(table)
+    print_table(table)
     for state in states:
         for outcome in state.failed:
             console.print(f"[red]{state.stage}/{outcome.unit}[/] attempt {outcome.attempt}: "
@@ -162,7 +162,7 @@ def query_command(
             table = Table(*relation.columns)
             for row in relation.fetchall():
                 table.add_row(*[_cell(v) for v in row])
-            console.print(table)
+            print_table(table)
             return
         text = write_result(relation, fmt.value, out)
     except USAGE_ERRORS as error:
@@ -196,12 +196,12 @@ def stats(
     table = Table("", *(row["embodiment"] for row in found.per_embodiment), title=f"{found.instances:,} object instances")
     for key, (label, fmt) in STATS_ROWS.items():
         table.add_row(label, *("-" if row[key] is None else fmt.format(row[key]) for row in found.per_embodiment))
-    console.print(table)
+    print_table(table)
     categories = Table("category", "masks", "instances", title=f"top {min(top, len(found.per_category))} of "
                        f"{len(found.per_category)} categories")
     for row in found.per_category[:top]:
         categories.add_row(str(row["name"]), f"{row['masks']:,}", f"{row['instances']:,}")
-    console.print(categories)
+    print_table(categories)
     if picture:
         console.print(f"picture: {picture}")
 

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from pipeline.cli.console import HELP_SETTINGS, FullHelpGroup, console, fail
+from pipeline.cli.console import HELP_SETTINGS, FullHelpGroup, console, fail, print_table
 from pipeline.scenes.scene import SceneError
 
 scenes_app = typer.Typer(cls=FullHelpGroup, rich_markup_mode=None, context_settings=HELP_SETTINGS, no_args_is_help=True,
@@ -83,8 +83,8 @@ def stats(
     for key in ("rooms", "triangles", "vertices", "objects", "void_triangles", "unknown_colors", "floor_area_m2"):
         value = summary[key]
         head.add_row(key, "unknown" if value is None else f"{value:,}" if isinstance(value, int) else str(value))
-    console.print(head)
+    print_table(head)
     table = Table("category", "objects")
     for name, count in summary["objects_per_category"].items():
         table.add_row(name, str(count))
-    console.print(table)
+    print_table(table)
