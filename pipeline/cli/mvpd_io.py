@@ -47,7 +47,7 @@ def export_command(
     run_dir: Annotated[Path, typer.Argument(help="run folder to export")],
     mvpd: Annotated[Path, typer.Option("--mvpd", help="MVPd root to write; the split folder goes inside it")],
     split: Annotated[str, typer.Option(help="split name (every video goes in it until a split stage exists)")] = "test",
-    embodiment: Annotated[Optional[str], typer.Option(help="embodiment to export (if the job has several)")] = None,
+    embodiment: Annotated[Optional[str], typer.Option(help="embodiment to export; needed when the job has several [default: the only one]")] = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="replace an existing <mvpd>/<split>")] = False,
 ) -> None:
     """Write a run's videos as an MVPd release split: JPEG colour, uint16 depth PNG, COCO panoptic PNG, JSON."""

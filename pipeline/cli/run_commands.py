@@ -77,9 +77,9 @@ def load_checked_job(job_file: Path) -> Job:
 
 def submit_command(
     job_file: Annotated[Path, typer.Argument(help="job YAML file")],
-    run_dir: Annotated[Optional[Path], typer.Option("--run-dir", help="run folder (default runs/<job name>)")] = None,
-    address: Annotated[Optional[str], typer.Option(help="Ray cluster address; local Ray when omitted")] = None,
-    stages: Annotated[Optional[str], typer.Option(help="comma-separated stages to run (default: all)")] = None,
+    run_dir: Annotated[Optional[Path], typer.Option("--run-dir", help="run folder [default: runs/<job name>]")] = None,
+    address: Annotated[Optional[str], typer.Option(help="Ray cluster address to join [default: a new local Ray, whatever RAY_ADDRESS says]")] = None,
+    stages: Annotated[Optional[str], typer.Option(help="comma-separated stages to run [default: all]")] = None,
 ) -> None:
     """Run a job: every stage, only the units that are not already done with the same config."""
     chosen = _parse_stages(stages)
@@ -94,7 +94,7 @@ def submit_command(
 
 def demo(
     run_dir: Annotated[Path, typer.Option("--run-dir", help="run folder")] = Path("runs/demo"),
-    address: Annotated[Optional[str], typer.Option(help="Ray cluster address; local Ray when omitted")] = None,
+    address: Annotated[Optional[str], typer.Option(help="Ray cluster address to join [default: a new local Ray, whatever RAY_ADDRESS says]")] = None,
 ) -> None:
     """Run the small demo job (generated houses, local Ray, local disk) and write pictures of it."""
     from pipeline.overview import write_overview
@@ -118,7 +118,7 @@ def rerun_command(
     run_dir: Annotated[Path, typer.Argument(help="run folder")],
     stage: Annotated[str, typer.Option(help="stage to rerun")],
     all_units: Annotated[bool, typer.Option("--all", help="rerun every unit, not only failed/missing/stale")] = False,
-    address: Annotated[Optional[str], typer.Option(help="Ray cluster address")] = None,
+    address: Annotated[Optional[str], typer.Option(help="Ray cluster address to join [default: a new local Ray, whatever RAY_ADDRESS says]")] = None,
 ) -> None:
     """Rerun one stage of a run: units that failed, are missing or are stale (or all with --all)."""
     _parse_stages(stage)
@@ -153,7 +153,7 @@ def query_command(
     run_dir: Annotated[Path, typer.Argument(help="run folder")],
     sql: Annotated[str, typer.Argument(help='SQL; every Parquet dataset is a table, e.g. "select * from scenes"')],
     fmt: Annotated[OutputFormat, typer.Option("--format", help="output format")] = OutputFormat.table,
-    out: Annotated[Optional[Path], typer.Option(help="write the result to this file")] = None,
+    out: Annotated[Optional[Path], typer.Option(help="write the result to this file [default: standard output]")] = None,
 ) -> None:
     """Query the run's Parquet metadata with SQL (DuckDB)."""
     try:
@@ -181,7 +181,7 @@ STATS_ROWS = {  # per-embodiment statistic -> (label, format)
 
 def stats(
     run_dir: Annotated[Path, typer.Argument(help="run folder (rendered or imported videos)")],
-    out: Annotated[Optional[Path], typer.Option(help="also draw the distributions into this PNG")] = None,
+    out: Annotated[Optional[Path], typer.Option(help="also draw the distributions into this PNG [default: no picture]")] = None,
     top: Annotated[int, typer.Option(min=1, help="categories listed (and drawn)")] = 15,
 ) -> None:
     """Dataset statistics: scenes, videos, frames, masks and objects per embodiment and per category."""
@@ -213,7 +213,7 @@ def _cell(value: object) -> str:
 def logs(
     run_dir: Annotated[Path, typer.Argument(help="run folder")],
     unit: Annotated[str, typer.Argument(help="unit id (see `mvpd status`)")],
-    stage: Annotated[Optional[str], typer.Option(help="stage, when the unit id is in several")] = None,
+    stage: Annotated[Optional[str], typer.Option(help="stage, when the unit id is in several [default: every stage]")] = None,
 ) -> None:
     """Print the log of one unit."""
     try:

@@ -52,8 +52,8 @@ def preview_command(
     scene_path: Annotated[Path, typer.Argument(help="a .semantic.txt / .glb of an HM3DSem scene, or a labelled mesh")],
     out: Annotated[Path, typer.Option("--out", help="PNG to write")],
     size: Annotated[int, typer.Option("--size", min=64, max=8192, help="picture width in pixels")] = 1024,
-    up_axis: Annotated[str | None, typer.Option("--up-axis", help="y or z; default z for HM3DSem, y otherwise")] = None,
-    below: Annotated[float | None, typer.Option("--below", help="leave out what is above this height (m)")] = None,
+    up_axis: Annotated[str | None, typer.Option("--up-axis", help="y or z [default: z for HM3DSem, y otherwise]")] = None,
+    below: Annotated[float | None, typer.Option("--below", help="leave out what is above this height (m) [default: keep everything]")] = None,
 ) -> None:
     """Write a top-down picture of a scene, objects coloured by mpcat40 category, with a legend."""
     from pipeline.scenes.preview import write_preview
@@ -69,7 +69,7 @@ def preview_command(
 @scenes_app.command()
 def stats(
     scene_path: Annotated[Path, typer.Argument(help="a .semantic.txt / .glb of an HM3DSem scene, or a labelled mesh")],
-    up_axis: Annotated[str | None, typer.Option("--up-axis", help="y or z; default z for HM3DSem, y otherwise")] = None,
+    up_axis: Annotated[str | None, typer.Option("--up-axis", help="y or z [default: z for HM3DSem, y otherwise]")] = None,
 ) -> None:
     """Print a scene's rooms, triangles, objects per category and floor area."""
     from pipeline.scenes.preview import scene_stats
