@@ -74,11 +74,9 @@ def import_command(
 ) -> None:
     """Read one split of an MVPd release into a run folder (one Ray task per video), so query, stats, preview
     and evaluate work on it. Exit 0 when every unit is done, 1 when some failed (listed), 2 on unusable input."""
-    from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, stage_progress
+    from pipeline.cli.console import EXIT_FAILED, EXIT_OK, check_plain_name, console, fail, stage_progress
 
-    splits = sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else []
-    if root.is_dir() and split not in splits:  # compared with the listing, never joined into a path
-        fail(f"{root}: no split folder {split!r}; it holds {', '.join(splits) or 'no folders'}")
+    check_plain_name(split, "--split")  # a plain name: <root>/<split> stays inside the release root
     try:
         with stage_progress() as observer:
             summary = import_release(root, split, run_dir, embodiment, all_units, address,

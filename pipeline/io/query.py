@@ -91,7 +91,7 @@ def query(run: RunFolder, sql: str) -> duckdb.DuckDBPyRelation:
     check_read_only(sql)
     try:
         return connect(run).sql(sql).materialize()
-    except duckdb.Error as error:
+    except (duckdb.Error, pa.ArrowException) as error:  # Arrow: a part file pyarrow cannot read
         known = ", ".join(run.datasets()) or "none yet"
         raise QueryError(f"{_first_line(error)} (tables in {run.root}: {known})") from None
 

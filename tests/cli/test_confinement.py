@@ -151,5 +151,5 @@ def test_export_and_import_split_names_stay_inside_their_roots(tmp_path, run, sp
     assert not (tmp_path / "release").exists() and not (tmp_path / "escape").exists()
     (tmp_path / "release" / "test").mkdir(parents=True)
     result = invoke("import-mvpd", tmp_path / "release", tmp_path / "imported", "--split", split)
-    assert result.exit_code == 2 and "no split folder" in result.output, result.output
+    assert result.exit_code == 2 and "not a plain name" in result.output, result.output
     assert not (tmp_path / "imported").exists()
