@@ -77,6 +77,7 @@ def test_query_reads_tables_and_joins_frame_stats_into_frames(run):
     ("LOAD httpfs", "only reads"),
     ("SET enable_external_access = true", "only reads"),
     ("select 1; COPY (select 1) TO '{outside}'", "exactly one"),
+    ("EXPLAIN ANALYZE COPY (select 1) TO '{outside}'", "disabled"),
     ("create table planted as select 1", "only reads"),
 ])
 def test_query_refuses_what_is_not_a_read_of_the_run(run, tmp_path, sql, words):
