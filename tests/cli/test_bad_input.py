@@ -67,14 +67,16 @@ def test_non_finite_stage_number(tmp_path):
 
 
 @pytest.mark.parametrize("name", ["..", ".", "a/b", "../up", "a\\\\b"])
-def test_job_names_that_would_be_paths(tmp_path, name):
+def test_job_names_that_would_be_paths(tmp_path, monkeypatch, name):
+    (tmp_path / "work").mkdir()
+    monkeypatch.chdir(tmp_path / "work")  # the run folder would be runs/<name> under here
     job = tmp_path / "job.yaml"
     job.write_text(f"name: '{name}'\nscenes: {{procedural: {{count: 1}}}}\nembodiments: {EMBODIMENT}\n")
-    before = set(Path.cwd().iterdir())
-    result = runner.invoke(app, ["submit", str(job)])  # the run folder would be runs/<name>
+    before = set(tmp_path.rglob("*"))
+    result = runner.invoke(app, ["submit", str(job)])
     assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1, result.output
     assert "name" in result.output
-    assert set(Path.cwd().iterdir()) == before
+    assert set(tmp_path.rglob("*")) == before
 
 
 GOOD = f"name: t\nscenes: {{procedural: {{count: 1}}}}\nembodiments: {EMBODIMENT}\n"
