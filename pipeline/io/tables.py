@@ -90,6 +90,15 @@ def write_part(root: Path, dataset: str, unit_id: str, table: pa.Table) -> Path:
     return path
 
 
+def dataset_parts(run_root: Path, dataset: str) -> list[Path]:
+    """The part files of a dataset, sorted; names are matched literally, so no character of the run
+    path (`[v1]`, `*`, `?`) is ever read as a pattern."""
+    folder = Path(run_root) / dataset
+    if not folder.is_dir():
+        return []
+    return sorted(p for p in folder.iterdir() if p.name.startswith("part-") and p.name.endswith(".parquet") and p.is_file())
+
+
 def read_dataset(run_root: Path, dataset: str) -> pa.Table:
     """All part files of a dataset as one table with the registered schema (empty when none)."""
     folder = Path(run_root) / dataset
