@@ -26,9 +26,9 @@ class ConfigError(ValueError):
 
 
 class Strict(BaseModel):
-    """Base: unknown keys are errors, instances are immutable."""
+    """Base: unknown keys are errors, instances are immutable, every number is finite (`.inf`/`.nan` refused)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 # ----------------------------------------------------------------------------------------- scenes
@@ -345,7 +345,8 @@ class RuntimeConfig(Strict):
 class Job(Strict):
     """A whole dataset job: scenes x embodiments -> trajectories -> videos."""
 
-    name: str = Field(pattern=r"^[A-Za-z0-9_\-.]+$")
+    name: str = Field(pattern=r"^[A-Za-z0-9_\-.]*[A-Za-z0-9_\-][A-Za-z0-9_\-.]*$",
+                      description="names the run folder runs/<name>: letters, digits, _, - and . (not only dots)")
     seed: int = Field(0, ge=0, description="root of every random draw")
     scenes: SceneSources
     embodiments: list[Embodiment] = Field(min_length=1)
@@ -408,6 +409,9 @@ def _read_yaml(path: Path) -> dict:
         raise ConfigError(f"{path}: no such file; give the path of a YAML job file")
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as error:
+        raise ConfigError(f"{path}: byte {error.start} is not UTF-8 text; give a YAML job file "
+                          "(is this a binary file?)") from None
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         line = f":{mark.line + 1}" if mark is not None else ""

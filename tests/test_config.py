@@ -41,6 +41,9 @@ def test_defaults_are_filled_and_hash_is_stable(tmp_path):
         (GOOD.replace("{procedural: {count: 2}}", "{meshes: {root: no/such/folder}}"), "scenes.meshes.root: folder"),
         (GOOD.replace("name: t", "name: [t"), "not valid YAML"),
         (GOOD + "seed: -1\n", "seed: Input should be greater than or equal to 0"),
+        (GOOD.replace("width: 64", "width: 64, hfov: .inf"), "embodiments.0.sensor.hfov: Input should be a finite number"),
+        (GOOD + "plan: {max_step: .nan}\n", "plan.max_step: Input should be a finite number"),
+        (GOOD.replace("name: t", "name: '..'"), "name: String should match pattern"),
     ],
 )
 def test_bad_job_files_give_one_line_errors_naming_the_key(tmp_path, text, expected):

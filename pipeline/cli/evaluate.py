@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from pipeline.cli.console import EXIT_BAD_INPUT, EXIT_FAILED, console, fail, stage_progress
+from pipeline.cli.console import EXIT_BAD_INPUT, EXIT_FAILED, console, fail, print_table, stage_progress
 from pipeline.cli.run_commands import EXECUTOR_HELP, ExecutorChoice
 from pipeline.config import ConfigError
 from pipeline.runtime.executor import StageOrderError
@@ -76,7 +76,7 @@ def register(app: typer.Typer) -> None:
                 console.print(f"[yellow]{video}: {info['missing_frames']} prediction frames missing, counted as empty[/]")
         for outcome in result.failed:
             console.print(f"[red]x[/] {outcome.unit}: {outcome.error_type}: {outcome.message}", soft_wrap=True)
-        console.print(summary_table(result))
+        print_table(summary_table(result))
         if out is not None:
             write_json(result, out)
             console.print(f"wrote {out}")

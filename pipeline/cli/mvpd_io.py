@@ -50,7 +50,7 @@ def export_command(
     mvpd: Annotated[Optional[Path],
                     typer.Option("--mvpd", help="MVPd root to write; the split folder goes inside it")] = None,
     split: Annotated[Optional[str], typer.Option(help="split to write [default: every split of the run's split stage; without one, every video as 'test']")] = None,
-    embodiment: Annotated[Optional[str], typer.Option(help="embodiment to export (if the job has several)")] = None,
+    embodiment: Annotated[Optional[str], typer.Option(help="embodiment to export; needed when the job has several [default: the only one]")] = None,
     overwrite: Annotated[bool, typer.Option(
         "--overwrite", help="replace an existing export (<mvpd>/<split>, or the --coco/--yolo files)")] = False,
     coco: Annotated[Optional[Path],
@@ -64,8 +64,11 @@ def export_command(
 ) -> None:
     """Write a run's videos as an MVPd release split (JPEG colour, uint16 depth PNG, COCO panoptic PNG, JSON),
     or as training data: COCO instance segmentation (--coco) or the ultralytics YOLO layout (--yolo)."""
-    from pipeline.cli.console import console, fail
+    from pipeline.cli.console import check_plain_name, console, fail
     from pipeline.split.selection import has_split
+
+    if split is not None:
+        check_plain_name(split, "--split")
 
     if coco is not None or yolo is not None or mvpd is None:
         _training_export(run_dir, coco, yolo, mvpd, every, categories, drop_stuff, embodiment, overwrite)
@@ -129,8 +132,9 @@ def import_command(
 ) -> None:
     """Read one split of an MVPd release into a run folder (one Ray task per video), so query, stats, preview
     and evaluate work on it. Exit 0 when every unit is done, 1 when some failed (listed), 2 on unusable input."""
-    from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, stage_progress
+    from pipeline.cli.console import EXIT_FAILED, EXIT_OK, check_plain_name, console, fail, stage_progress
 
+    check_plain_name(split, "--split")  # a plain name: <root>/<split> stays inside the release root
     try:
         with stage_progress() as observer:
             summary = import_release(root, split, run_dir, embodiment, all_units, address,

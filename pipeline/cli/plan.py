@@ -7,8 +7,11 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
+from pipeline.cli.console import HELP_SETTINGS, FullHelpGroup, print_table
+
 console = Console()
-plan_app = typer.Typer(no_args_is_help=True, help="Navigable areas and camera trajectories.")
+plan_app = typer.Typer(cls=FullHelpGroup, rich_markup_mode=None, context_settings=HELP_SETTINGS, no_args_is_help=True,
+                       help="Navigable areas and camera trajectories.")
 
 
 @plan_app.command("preview")
@@ -57,7 +60,7 @@ def report(
         rejected = ", ".join(f"{k} {v}" for k, v in entry.rejected.items())
         table.add_row(entry.unit, entry.status, str(entry.paths), str(entry.attempts), rejected,
                       f"{entry.navigable_m2:.1f}", str(entry.islands), entry.reason)
-    console.print(table)
+    print_table(table)
     problems = sum(r.status != "planned" for r in reports)
     console.print(f"{len(reports)} plan units, {problems} with fewer paths than asked", highlight=False)
 

@@ -30,7 +30,7 @@ def preview(
     run: Annotated[Path, typer.Argument(help="run folder")],
     video: Annotated[str, typer.Argument(help="video name, e.g. proc-000000.0000000003.0000001000")],
     out: Annotated[Path, typer.Option("--out", help="folder for <video>.gif|mp4 and <video>.png")],
-    embodiment: Annotated[Optional[str], typer.Option(help="embodiment, when several rendered this video")] = None,
+    embodiment: Annotated[Optional[str], typer.Option(help="embodiment, when several rendered this video [default: the only one]")] = None,
     rows: Annotated[int, typer.Option(min=1, max=64, help="frames on the contact sheet")] = 6,
     format: Annotated[AnimationFormat, typer.Option("--format", help="animation format")] = AnimationFormat.gif,
 ) -> None:

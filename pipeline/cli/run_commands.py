@@ -10,8 +10,8 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, stage_progress
-from pipeline.config import ConfigError, json_schemas, load_job
+from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, print_table, stage_progress
+from pipeline.config import ConfigError, Job, load_job
 from pipeline.io.dataset_stats import COMPARISON_COLUMNS, SPLIT_ROWS, StatsError, dataset_stats, write_stats_picture
 from pipeline.io.query import QueryError, query, write_result
 from pipeline.runtime.executor import StageOrderError, StagePlan
@@ -71,17 +71,31 @@ def _parse_stages(stages: str | None) -> list[str] | None:
     return sorted(names, key=JOB_STAGES.index)
 
 
+def load_checked_job(job_file: Path) -> Job:
+    """The job of `job_file`, with its scene sources listed: a source that names a missing scene or holds
+    none is refused here, before any run folder is created (ConfigError, one line)."""
+    from pipeline.scenes.scene import SceneError
+    from pipeline.scenes.sources import list_scene_refs
+
+    job = load_job(job_file)
+    try:
+        list_scene_refs(job.scenes)
+    except SceneError as error:
+        raise ConfigError(f"{job_file}: {error}") from None
+    return job
+
+
 def submit_command(
     job_file: Annotated[Path, typer.Argument(help="job YAML file")],
-    run_dir: Annotated[Optional[Path], typer.Option("--run-dir", help="run folder (default runs/<job name>)")] = None,
-    address: Annotated[Optional[str], typer.Option(help="Ray cluster address; local Ray when omitted")] = None,
-    stages: Annotated[Optional[str], typer.Option(help="comma-separated stages to run (default: all)")] = None,
+    run_dir: Annotated[Optional[Path], typer.Option("--run-dir", help="run folder [default: runs/<job name>]")] = None,
+    address: Annotated[Optional[str], typer.Option(help="Ray cluster address to join [default: a new local Ray, whatever RAY_ADDRESS says]")] = None,
+    stages: Annotated[Optional[str], typer.Option(help="comma-separated stages to run [default: all]")] = None,
     executor: Annotated[ExecutorChoice, typer.Option(help=EXECUTOR_HELP)] = ExecutorChoice.auto,
 ) -> None:
     """Run a job: every stage, only the units that are not already done with the same config (or are damaged)."""
     chosen = _parse_stages(stages)
     try:
-        job = load_job(job_file)
+        job = load_checked_job(job_file)
         with stage_progress() as observer:
             report = submit(job, run_dir or Path("runs") / job.name, chosen, address, _telling_damage(observer),
                             executor.value)
@@ -92,14 +106,14 @@ def submit_command(
 
 def demo(
     run_dir: Annotated[Path, typer.Option("--run-dir", help="run folder")] = Path("runs/demo"),
-    address: Annotated[Optional[str], typer.Option(help="Ray cluster address; local Ray when omitted")] = None,
+    address: Annotated[Optional[str], typer.Option(help="Ray cluster address to join [default: a new local Ray, whatever RAY_ADDRESS says]")] = None,
 ) -> None:
     """Run the small demo job (generated houses, local Ray, local disk) and write pictures of it."""
     from pipeline.overview import write_overview
 
     try:
         with stage_progress() as observer:
-            report = submit(load_job(DEMO_JOB), run_dir, None, address, observer)
+            report = submit(load_checked_job(DEMO_JOB), run_dir, None, address, observer)
         if report.failed:
             _finish(report)
         pictures = write_overview(RunFolder.open(run_dir), run_dir / "previews")
@@ -117,7 +131,7 @@ def rerun_command(
     run_dir: Annotated[Path, typer.Argument(help="run folder")],
     stage: Annotated[str, typer.Option(help="stage to rerun")],
     all_units: Annotated[bool, typer.Option("--all", help="rerun every unit, not only failed/missing/stale")] = False,
-    address: Annotated[Optional[str], typer.Option(help="Ray cluster address")] = None,
+    address: Annotated[Optional[str], typer.Option(help="Ray cluster address to join [default: a new local Ray, whatever RAY_ADDRESS says]")] = None,
     executor: Annotated[ExecutorChoice, typer.Option(help=EXECUTOR_HELP)] = ExecutorChoice.auto,
 ) -> None:
     """Rerun one stage of a run: units that failed, are missing, stale or damaged (or all with --all)."""
@@ -169,7 +183,7 @@ def status(
         table.add_row(stage.stage, str(stage.total), str(len(stage.done)), str(len(stage.stale)), str(len(stage.failed)),
                       str(len(stage.damaged)),
                       str(len(stage.pending)) + (f" ({stage.waiting_for})" if stage.waiting_for else ""))
-    console.print(table)
+    print_table(table)
     for stage in state.stages:
         for outcome in stage.failed:
             console.print(f"[red]{stage.stage}/{outcome.unit}[/] attempt {outcome.attempt}: "
@@ -203,7 +217,7 @@ def query_command(
     run_dir: Annotated[Path, typer.Argument(help="run folder")],
     sql: Annotated[str, typer.Argument(help='SQL; every Parquet dataset is a table, e.g. "select * from scenes"')],
     fmt: Annotated[OutputFormat, typer.Option("--format", help="output format")] = OutputFormat.table,
-    out: Annotated[Optional[Path], typer.Option(help="write the result to this file")] = None,
+    out: Annotated[Optional[Path], typer.Option(help="write the result to this file [default: standard output]")] = None,
 ) -> None:
     """Query the run's Parquet metadata with SQL (DuckDB)."""
     try:
@@ -212,7 +226,7 @@ def query_command(
             table = Table(*relation.columns)
             for row in relation.fetchall():
                 table.add_row(*[_cell(v) for v in row])
-            console.print(table)
+            print_table(table)
             return
         text = write_result(relation, fmt.value, out)
     except USAGE_ERRORS as error:
@@ -231,7 +245,7 @@ STATS_ROWS = {  # per-embodiment statistic -> (label, format)
 
 def stats(
     run_dir: Annotated[Path, typer.Argument(help="run folder (rendered or imported videos)")],
-    out: Annotated[Optional[Path], typer.Option(help="also draw the distributions into this PNG")] = None,
+    out: Annotated[Optional[Path], typer.Option(help="also draw the distributions into this PNG [default: no picture]")] = None,
     top: Annotated[int, typer.Option(min=1, help="categories listed (and drawn)")] = 15,
 ) -> None:
     """Dataset statistics: scenes, videos, frames, masks and objects per embodiment and per category."""
@@ -246,17 +260,17 @@ def stats(
     table = Table("", *(row["embodiment"] for row in found.per_embodiment), title=f"{found.instances:,} object instances")
     for key, (label, fmt) in STATS_ROWS.items():
         table.add_row(label, *("-" if row[key] is None else fmt.format(row[key]) for row in found.per_embodiment))
-    console.print(table)
+    print_table(table)
     categories = Table("category", "masks", "instances", title=f"top {min(top, len(found.per_category))} of "
                        f"{len(found.per_category)} categories")
     for row in found.per_category[:top]:
         categories.add_row(str(row["name"]), f"{row['masks']:,}", f"{row['instances']:,}")
-    console.print(categories)
+    print_table(categories)
     if found.per_split:
         splits = Table("", *(str(row["split"]) for row in found.per_split), title="splits (all embodiments)")
         for key, label in SPLIT_ROWS.items():
             splits.add_row(label, *(f"{int(row[key]):,}" for row in found.per_split))
-        console.print(splits)
+        print_table(splits)
     else:
         console.print("no split stage in this run (add a `split:` section to the job for train / val / test)")
     # Transposed (one line per column of the paper's table) so it fits a terminal.
@@ -265,7 +279,7 @@ def stats(
         value = found.comparison[key]
         comparison.add_row(label, f"{value:,.1f}" if isinstance(value, float) else f"{value:,}" if isinstance(value, int)
                            else str(value))
-    console.print(comparison)
+    print_table(comparison)
     if picture:
         console.print(f"picture: {picture}")
 
@@ -277,19 +291,32 @@ def _cell(value: object) -> str:
 def logs(
     run_dir: Annotated[Path, typer.Argument(help="run folder")],
     unit: Annotated[str, typer.Argument(help="unit id (see `mvpd status`)")],
-    stage: Annotated[Optional[str], typer.Option(help="stage, when the unit id is in several")] = None,
+    stage: Annotated[Optional[str], typer.Option(help="stage, when the unit id is in several [default: every stage]")] = None,
 ) -> None:
     """Print the log of one unit."""
     try:
         run = RunFolder.open(run_dir)
     except USAGE_ERRORS as error:
         fail(str(error))
-    found = sorted((run.root / "logs").glob(f"{stage or '*'}/{unit}.log"))
+    found = _unit_logs(run.root / "logs", unit, stage)
     if not found:
-        fail(f"{run.root / 'logs'}: no log for unit {unit!r}; unit ids are listed by `mvpd status` and `_state/`")
+        fail(f"{run.root / 'logs'}: no log for unit {unit!r}{f' of stage {stage!r}' if stage else ''}; "
+             "unit ids are listed by `mvpd status` and `_state/`")
     for path in found:
-        console.rule(str(path.relative_to(run.root)))
-        typer.echo(path.read_text(encoding="utf-8"), nl=False)
+        typer.echo(f"== {path.relative_to(run.root)} ==")
+        typer.echo(path.read_text(encoding="utf-8", errors="replace"), nl=False)
+
+
+def _unit_logs(logs_folder: Path, unit: str, stage: str | None) -> list[Path]:
+    """The log files named exactly `<unit>.log` in the stage folders of `logs/` (all, or the one named).
+
+    Names are compared with the folder listing, never joined into a path: `../x` or `/etc/x` finds nothing.
+    """
+    if not logs_folder.is_dir():
+        return []
+    wanted = f"{unit}.log"
+    return sorted(entry for folder in sorted(logs_folder.iterdir()) if folder.is_dir() and stage in (None, folder.name)
+                  for entry in folder.iterdir() if entry.name == wanted and entry.is_file())
 
 
 def schemas(

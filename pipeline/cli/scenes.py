@@ -8,10 +8,11 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from pipeline.cli.console import console, fail
+from pipeline.cli.console import HELP_SETTINGS, FullHelpGroup, console, fail, print_table
 from pipeline.scenes.scene import SceneError
 
-scenes_app = typer.Typer(no_args_is_help=True, help="Generate, preview and describe scenes.")
+scenes_app = typer.Typer(cls=FullHelpGroup, rich_markup_mode=None, context_settings=HELP_SETTINGS, no_args_is_help=True,
+                         help="Generate, preview and describe scenes.")
 
 
 def register(app: typer.Typer) -> None:
@@ -51,8 +52,8 @@ def preview_command(
     scene_path: Annotated[Path, typer.Argument(help="a .semantic.txt / .glb of an HM3DSem scene, or a labelled mesh")],
     out: Annotated[Path, typer.Option("--out", help="PNG to write")],
     size: Annotated[int, typer.Option("--size", min=64, max=8192, help="picture width in pixels")] = 1024,
-    up_axis: Annotated[str | None, typer.Option("--up-axis", help="y or z; default z for HM3DSem, y otherwise")] = None,
-    below: Annotated[float | None, typer.Option("--below", help="leave out what is above this height (m)")] = None,
+    up_axis: Annotated[str | None, typer.Option("--up-axis", help="y or z [default: z for HM3DSem, y otherwise]")] = None,
+    below: Annotated[float | None, typer.Option("--below", help="leave out what is above this height (m) [default: keep everything]")] = None,
 ) -> None:
     """Write a top-down picture of a scene, objects coloured by mpcat40 category, with a legend."""
     from pipeline.scenes.preview import write_preview
@@ -68,7 +69,7 @@ def preview_command(
 @scenes_app.command()
 def stats(
     scene_path: Annotated[Path, typer.Argument(help="a .semantic.txt / .glb of an HM3DSem scene, or a labelled mesh")],
-    up_axis: Annotated[str | None, typer.Option("--up-axis", help="y or z; default z for HM3DSem, y otherwise")] = None,
+    up_axis: Annotated[str | None, typer.Option("--up-axis", help="y or z [default: z for HM3DSem, y otherwise]")] = None,
 ) -> None:
     """Print a scene's rooms, triangles, objects per category and floor area."""
     from pipeline.scenes.preview import scene_stats
@@ -82,8 +83,8 @@ def stats(
     for key in ("rooms", "triangles", "vertices", "objects", "void_triangles", "unknown_colors", "floor_area_m2"):
         value = summary[key]
         head.add_row(key, "unknown" if value is None else f"{value:,}" if isinstance(value, int) else str(value))
-    console.print(head)
+    print_table(head)
     table = Table("category", "objects")
     for name, count in summary["objects_per_category"].items():
         table.add_row(name, str(count))
-    console.print(table)
+    print_table(table)

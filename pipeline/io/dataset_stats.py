@@ -134,6 +134,7 @@ def write_stats_picture(run: RunFolder, stats: DatasetStats, out: Path, top: int
 
     matplotlib.use("Agg")  # files only, never a window
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     connection = _connection(run)
     rows = 3 if stats.clusters else 2
@@ -147,25 +148,34 @@ def write_stats_picture(run: RunFolder, stats: DatasetStats, out: Path, top: int
     axes[0, 0].bar([row["name"] for row in shown], [row["masks"] for row in shown],
                    color=[colours.get(int(row["category"]), (0.5, 0.5, 0.5)) for row in shown], edgecolor="black")
     axes[0, 0].set_yscale("log")
-    axes[0, 0].tick_params(axis="x", rotation=70)
+    # Names slanted and anchored at their right end, so long category names never run into each other.
+    plt.setp(axes[0, 0].get_xticklabels(), rotation=60, ha="right", rotation_mode="anchor", fontsize=8)
+    axes[0, 0].set_xlabel("mpcat40 category")
+    axes[0, 0].set_ylabel("masks (log scale)")
     axes[0, 0].set_title(f"masks per category (top {len(shown)} of {len(stats.per_category)})")
-    histograms = [
-        (axes[0, 1], "select embodiment, frames as value, count(*) from videos group by all", "frames per video"),
-        (axes[1, 0], "select embodiment, visible_objects, count(*) from frame_stats group by all", "objects visible per frame"),
+    histograms = [  # (axis, SQL, title, x label, y label, whole-number values)
+        (axes[0, 1], "select embodiment, frames as value, count(*) from videos group by all", "frames per video",
+         "frames in the video", "videos", True),
+        (axes[1, 0], "select embodiment, visible_objects, count(*) from frame_stats group by all",
+         "objects visible per frame", "objects visible in the frame", "frames", True),
         (axes[1, 1], "select embodiment, round(void_fraction, 2), count(*) from frame_stats group by all",
-         "void fraction per frame"),
+         "void fraction per frame", "fraction of the frame's pixels that are void", "frames", False),
     ]
-    for axis, sql, title in histograms:
+    for axis, sql, title, x_label, y_label, whole in histograms:
         series = _series(connection, sql)
         low = min(min(values) for _, values, _ in series)
         high = max(max(values) for _, values, _ in series)
-        bins = np.linspace(low, high if high > low else low + 1, 21)
+        bins = _bins(low, high, whole)
         for number, (embodiment, values, counts) in enumerate(series):
             # Histograms of (value, count) pairs DuckDB already counted; dashes keep identical ones visible.
             axis.hist(values, bins=bins, weights=counts, histtype="step", linewidth=2,
                       linestyle=("-", "--", ":", "-.")[number % 4], label=embodiment)
         axis.set_title(title)
-        axis.set_ylabel("count")
+        axis.set_xlabel(x_label)
+        axis.set_ylabel(y_label)
+        axis.yaxis.set_major_locator(MaxNLocator(integer=True))  # counts are whole numbers
+        if whole:
+            axis.xaxis.set_major_locator(MaxNLocator(integer=True))
         axis.legend()
     figure.suptitle(f"{run.root.name}: {sum(r['videos'] for r in stats.per_embodiment)} videos, "
                     f"{sum(r['frames'] for r in stats.per_embodiment)} frames, "
@@ -192,6 +202,13 @@ def draw_cluster_histogram(axis: "object", clusters: list[dict[str, object]]) ->
     axis.yaxis.get_major_locator().set_params(integer=True)  # type: ignore[attr-defined]
     unseen = sum(bool(c["unseen"]) for c in clusters)
     axis.set_title(f"zero-shot clusters: training videos showing any of their names ({unseen} unseen, hatched red)")  # type: ignore[attr-defined]
+
+
+def _bins(low: float, high: float, whole: bool) -> np.ndarray:
+    """20 equal bins over [low, high]; for whole numbers over a short range, one bin per value centred on it."""
+    if whole and high - low <= 40:
+        return np.arange(low, high + 2) - 0.5
+    return np.linspace(low, high if high > low else low + 1, 21)
 
 
 def _connection(run: RunFolder) -> duckdb.DuckDBPyConnection:

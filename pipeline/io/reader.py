@@ -110,19 +110,28 @@ def list_videos(run: Any) -> list[tuple[str, str]]:
 
 
 def _resolve_embodiment(run: Any, name: str, embodiment: str | None) -> str:
+    """The embodiment of the stored video `name`, found by listing `videos/` (names are compared, never
+    joined into a path, so `../x` or an absolute name finds nothing)."""
     root = _run_root(run)
+    hint = f"`mvpd query {root} \"select embodiment, video_name from videos\"` lists them"
+    found = _video_embodiments(root / "videos", f"{name}.zarr")
     if embodiment is not None:
-        if not (root / "videos" / embodiment / f"{name}.zarr").is_dir():
-            raise VideoNotFoundError(f"{root}/videos/{embodiment}/{name}.zarr: no such video; "
-                                     f"`mvpd query {root} \"select embodiment, video_name from videos\"` lists them")
+        if embodiment not in found:
+            raise VideoNotFoundError(f"{root}: no video {name!r} of embodiment {embodiment!r}; {hint}")
         return embodiment
-    found = sorted(p.parent.name for p in (root / "videos").glob(f"*/{name}.zarr")) if (root / "videos").is_dir() else []
     if not found:
-        raise VideoNotFoundError(f"{root}: no rendered video named {name!r}; "
-                                 f"`mvpd query {root} \"select embodiment, video_name from videos\"` lists them")
+        raise VideoNotFoundError(f"{root}: no rendered video named {name!r}; {hint}")
     if len(found) > 1:
         raise VideoNotFoundError(f"{root}: video {name!r} exists for embodiments {', '.join(found)}; pass embodiment= (CLI: --embodiment)")
     return found[0]
+
+
+def _video_embodiments(videos: Path, store: str) -> list[str]:
+    """Sorted names of the embodiment folders under `videos` that hold a store folder named exactly `store`."""
+    if not videos.is_dir():
+        return []
+    return sorted(folder.name for folder in videos.iterdir()
+                  if folder.is_dir() and any(entry.name == store and entry.is_dir() for entry in folder.iterdir()))
 
 
 def _object_names(root: Path, scene_id: str) -> tuple[dict[int, int], dict[int, str]]:

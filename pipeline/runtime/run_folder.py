@@ -56,7 +56,11 @@ class RunFolder:
         is_run = (run.root / JOB_FILE).is_file() or (run.root / STATE).is_dir()
         if run.root.exists() and any(run.root.iterdir()) and not is_run:
             raise RunFolderError(f"{run.root}: exists, is not empty and has no {JOB_FILE}; choose an empty or new folder")
-        run.root.mkdir(parents=True, exist_ok=True)
+        try:
+            run.root.mkdir(parents=True, exist_ok=True)
+        except OSError as error:  # read-only file system, a parent that is a file, no permission
+            raise RunFolderError(f"{run.root}: cannot create the run folder ({error.strerror}); "
+                                 "choose a writable place (--run-dir)") from None
         return run
 
     @classmethod

@@ -27,14 +27,21 @@ def list_scene_refs(sources: SceneSources) -> list[SceneRef]:
     if sources.procedural is not None:
         refs.extend(_procedural_refs(sources.procedural))
     if sources.hm3dsem is not None:
-        refs.extend(_hm3dsem_refs(sources.hm3dsem))
+        refs.extend(_found(_hm3dsem_refs(sources.hm3dsem), "hm3dsem", sources.hm3dsem.root, f"*{SEMANTIC_TXT}"))
     if sources.meshes is not None:
-        refs.extend(_mesh_refs(sources.meshes))
+        refs.extend(_found(_mesh_refs(sources.meshes), "meshes", sources.meshes.root, sources.meshes.pattern))
     refs.sort(key=lambda ref: ref.scene_id)
     ids = [ref.scene_id for ref in refs]
     duplicates = sorted({i for i in ids if ids.count(i) > 1})
     if duplicates:
         raise SceneError(f"scenes: ids {duplicates} come from more than one file; rename the files or drop a source")
+    return refs
+
+
+def _found(refs: list[SceneRef], source: str, root: Path, pattern: str) -> list[SceneRef]:
+    """`refs`, or a one-line SceneError when a named source holds no scene (a job must never run on nothing)."""
+    if not refs:
+        raise SceneError(f"{root}: no scene file matches {pattern!r}; fix scenes.{source}.root or its pattern")
     return refs
 
 
