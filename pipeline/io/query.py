@@ -14,6 +14,7 @@ switched off and its configuration locked. `query` also accepts only a single re
 from __future__ import annotations
 
 import json
+import logging
 import math
 from pathlib import Path
 
@@ -22,8 +23,10 @@ import pyarrow as pa
 import pyarrow.dataset as pads
 import pyarrow.parquet as pq
 
-from pipeline.io.tables import all_tables, dataset_parts
+from pipeline.io.tables import all_tables, damage_line, damaged_parts, dataset_parts
 from pipeline.runtime.run_folder import RunFolder
+
+log = logging.getLogger(__name__)
 
 
 class QueryError(ValueError):
@@ -46,6 +49,7 @@ def connect(run: RunFolder) -> duckdb.DuckDBPyConnection:
     """An in-memory, locked-down DuckDB connection with one view per Parquet dataset of the run (`frames` joined)."""
     connection = duckdb.connect(":memory:")
     datasets = run.datasets()
+    _report_damage(run, datasets)
     for dataset in datasets:
         connection.register(_hidden(dataset), _arrow_dataset(run, dataset))
         connection.execute(f'CREATE VIEW "{dataset}" AS SELECT * FROM "{_hidden(dataset)}"')
@@ -56,6 +60,15 @@ def connect(run: RunFolder) -> duckdb.DuckDBPyConnection:
     for setting in LOCKDOWN:
         connection.execute(setting)
     return connection
+
+
+def _report_damage(run: RunFolder, datasets: list[str]) -> None:
+    """Rows of damaged units are left out (`dataset_parts`); say so once, on stderr (json output stays clean)."""
+    damaged = {dataset: damaged_parts(run.root, dataset) for dataset in datasets}
+    affected = [dataset for dataset, found in damaged.items() if found]
+    if affected:
+        log.warning("%s", damage_line(", ".join(affected), sorted({d for found in damaged.values() for d in found},
+                                                                  key=lambda d: (d.stage, d.unit, d.path))))
 
 
 def _hidden(dataset: str) -> str:

@@ -287,3 +287,17 @@ def test_evaluate_in_process_and_on_ray_give_the_same_result(ray_session, tmp_pa
         results[executor + "_metrics"] = {Path(p).name: d for p, d in parts.items()}
     assert results["local"] == results["ray"] and results["local_metrics"] == results["ray_metrics"]
     assert len(results["local_metrics"]) == 3  # one part per video
+
+
+def test_query_and_stats_leave_a_damaged_unit_out_and_say_so_in_one_line(job_run, caplog):
+    run, _ = job_run
+    shard = sorted((run / "videos" / "tiny").glob("*.zarr/panoptic/c/0/*/*"))[0]
+    data = shard.read_bytes()
+    shard.unlink()
+    result = invoke("query", run, "select count(*) from videos", "--format", "csv")
+    assert result.exit_code == 0 and result.output.splitlines()[1] == "1", result.output
+    lines = [r.getMessage() for r in caplog.records if "damaged unit" in r.getMessage()]
+    assert len(lines) == 1 and "rows of 1 damaged unit(s) left out" in lines[0] and "mvpd rerun" in lines[0]
+    assert invoke("stats", run).exit_code == 0
+    shard.write_bytes(data)  # put back as it was: the run is whole again
+    assert invoke("status", run).exit_code == 0
