@@ -233,7 +233,7 @@ class RuntimeConfig(Strict):
 
     max_in_flight: int = Field(0, ge=0, description="tasks in flight per stage; 0 = twice the cluster's CPUs")
     max_retries: int = Field(3, ge=0, description="retries of a unit whose worker died (not of its errors)")
-    resources: dict[Literal["shard", "plan", "render", "evaluate", "import"], StageResources] = Field(default_factory=dict)
+    resources: dict[Literal["shard", "plan", "render", "evaluate", "import", "predict"], StageResources] = Field(default_factory=dict)
 
     def for_stage(self, stage: str) -> StageResources:
         return self.resources.get(stage, StageResources())  # type: ignore[call-overload]
