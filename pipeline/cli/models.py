@@ -38,6 +38,23 @@ def split_videos(run: Path, split: str | None) -> list[str] | None:
     return sorted({name for _, name in accepted})
 
 
+DEMO_MODELS = ("geometric", "geometric+sp")
+
+
+def demo_model_report(run_dir: Path, address: str | None) -> None:
+    """The demo's last step: `geometric` with and without self-prompting, reported into RUN/report."""
+    from pipeline.models.report import ReportError, write_model_report
+
+    try:
+        with stage_progress() as observer:
+            path = write_model_report(run_dir, DEMO_MODELS, address=address, observer=observer)
+    except _input_errors() as error:
+        fail(str(error))
+    except ReportError as error:
+        fail(str(error), EXIT_FAILED)
+    console.print(f"[bold]models:[/] {path} (geometric with and without FastSPAM self-prompting)")
+
+
 def register(app: typer.Typer) -> None:
     """Add `mvpd predict` and `mvpd report` to the app."""
 
@@ -81,15 +98,19 @@ def register(app: typer.Typer) -> None:
         models: Annotated[str, typer.Option("--models", help="comma-separated model specs, e.g. geometric,geometric+sp (+sp = FastSPAM)")] = "geometric,geometric+sp",
         out: Annotated[Optional[Path], typer.Option("--out", help="report folder [default: RUN/report]")] = None,
         embodiment: Annotated[Optional[str], typer.Option("--embodiment", help="embodiment [default: the job's first]")] = None,
+        split: Annotated[Optional[str], typer.Option("--split", help="report on this split's videos (when the run has a split)")] = None,
         address: Annotated[Optional[str], typer.Option(help="Ray cluster address [default: a local Ray]")] = None,
     ) -> None:
         """Predict and evaluate each model as needed, then write report.md and PNG plots of the paper's tables."""
-        from pipeline.models.report import write_model_report
+        from pipeline.models.report import ReportError, write_model_report
 
         try:
+            videos = split_videos(run, split)
             with stage_progress() as observer:
                 path = write_model_report(run, [m.strip() for m in models.split(",") if m.strip()], out, embodiment,
-                                          address=address, observer=observer)
+                                          videos, address=address, observer=observer)
         except _input_errors() as error:
             fail(str(error))
+        except ReportError as error:
+            fail(str(error), EXIT_FAILED)
         console.print(f"[bold]report:[/] {path}")
