@@ -14,6 +14,7 @@ frame against itself with self-prompting; and pictures (`vsq_by_k.png`, `vsq_by_
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -275,8 +276,10 @@ def _picture_strip(run: RunFolder, embodiment: str, specs: Sequence[str], out: P
         images = [np.asarray(video.rgb[t]), _colour_ids(np.asarray(video.panoptic[t]))]
         for folder in folders:
             rles = read_rle_file(folder / names[0] / f"{t:010d}.json")["coco_rle"]
-            masks = (mask_utils.decode([{"size": r["size"], "counts": r["counts"].encode()} for r in rles]).transpose(2, 0, 1)
-                     if rles else np.zeros((0, *images[0].shape[:2]), np.uint8))
+            with warnings.catch_warnings():  # pycocotools' decode warns about NumPy 2's copy keyword, harmlessly
+                warnings.simplefilter("ignore", DeprecationWarning)
+                masks = (mask_utils.decode([{"size": r["size"], "counts": r["counts"].encode()} for r in rles]).transpose(2, 0, 1)
+                         if rles else np.zeros((0, *images[0].shape[:2]), np.uint8))
             images.append(_colour_masks(masks.astype(bool)))
         for column, (axis, image) in enumerate(zip(axes[row], images)):
             axis.imshow(image)

@@ -10,7 +10,6 @@ import pytest
 import zarr
 from typer.testing import CliRunner
 
-import tests.render.tiny_run as tiny_run
 from pipeline.cli.main import app
 from pipeline.evaluate.api import evaluate_run
 from pipeline.io.zarr_video import open_video
@@ -18,17 +17,7 @@ from pipeline.models.predict import ModelConfig, predict_run
 from tests.evaluate.reference import reference_video
 
 runner = CliRunner()
-FRAMES = 17  # one published window (windows start while start < T - 15)
-
-
-@pytest.fixture(scope="module")
-def run_root(tmp_path_factory) -> Path:
-    """The tiny two-embodiment run of tests/render, 17 frames per video."""
-    root = tmp_path_factory.mktemp("predict") / "run"
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(tiny_run, "FRAMES", FRAMES)
-        tiny_run.render_tiny_run(root)
-    return root
+from tests.models.conftest import FRAMES
 
 
 def invoke(*args: object):
