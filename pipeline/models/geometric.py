@@ -43,6 +43,9 @@ class GeometricOptions(BaseModel):
     depth_weight: float = Field(400.0, ge=0, description="edge weight per unit of relative depth jump |dz| / z")
     normal_weight: float = Field(60.0, ge=0, description="edge weight per unit of (1 - cos) between surface normals")
     min_area_fraction: float = Field(0.001, ge=0, lt=1, description="regions below this fraction of the frame are merged away")
+    levels: int = Field(1, ge=1, le=4, description="1 = one partition; more = nested coarser partitions too, "
+                        "overlapping masks at several granularities like SAM/FastSAM's everything mode")
+    level_factor: float = Field(4.0, gt=1, description="scale multiplier from one level to the next")
 
 
 class GeometricSegmenter(Segmenter):
@@ -62,7 +65,7 @@ class GeometricSegmenter(Segmenter):
         return {"name": self.name, "options": self.options.model_dump()}
 
     def labels(self, frame: FrameInput) -> np.ndarray:
-        """(H, W) int32 region labels 0..n-1 of the full-resolution frame."""
+        """(levels, H, W) int32 region labels 0..n-1 per level of the full-resolution frame."""
         options = self.options
         height, width = frame.rgb.shape[:2]
         small_w, small_h = max(1, width // options.downscale), max(1, height // options.downscale)
@@ -73,15 +76,24 @@ class GeometricSegmenter(Segmenter):
         points, normals = _geometry(frame, small_w, small_h)
         min_size = max(1, int(round(options.min_area_fraction * small_w * small_h)))
         small = _segment_graph(lab, points, normals, np.float32(options.depth_weight), np.float32(options.normal_weight),
-                               np.float32(options.scale), min_size)
+                               np.float32(options.scale), min_size, options.levels, np.float32(options.level_factor))
         if options.downscale == 1:
             return small
-        return cv2.resize(small, (width, height), interpolation=cv2.INTER_NEAREST)
+        return np.stack([cv2.resize(level, (width, height), interpolation=cv2.INTER_NEAREST) for level in small])
 
     def segment(self, frame: FrameInput) -> np.ndarray:
-        labels = self.labels(frame)
-        count = int(labels.max()) + 1
-        return labels[None, :, :] == np.arange(count, dtype=labels.dtype)[:, None, None]
+        """Every region of every level; a coarser region identical to a finer one is given once."""
+        levels = [level[None, :, :] == np.arange(int(level.max()) + 1, dtype=level.dtype)[:, None, None]
+                  for level in self.labels(frame)]
+        if len(levels) == 1:
+            return levels[0]
+        masks, seen = [], set()
+        for mask in (m for level in levels for m in level):
+            key = np.packbits(mask).tobytes()
+            if key not in seen:
+                seen.add(key)
+                masks.append(mask)
+        return np.stack(masks)
 
 
 def _geometry(frame: FrameInput, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -151,7 +163,9 @@ def _edge_weight(lab: np.ndarray, points: np.ndarray, normals: np.ndarray, a_row
 
 @numba.njit(cache=True)
 def _segment_graph(lab: np.ndarray, points: np.ndarray, normals: np.ndarray, depth_weight: float,
-                   normal_weight: float, scale: float, min_size: int) -> np.ndarray:
+                   normal_weight: float, scale: float, min_size: int, levels: int, level_factor: float) -> np.ndarray:
+    """(levels, H, W) int32 labels; level l merges with scale * level_factor ** l, continuing level l - 1's
+    regions, so the levels are nested (every region of a level lies inside one region of the next)."""
     height, width = points.shape[:2]
     pixels = height * width
     edges = 4 * pixels
@@ -172,29 +186,33 @@ def _segment_graph(lab: np.ndarray, points: np.ndarray, normals: np.ndarray, dep
     order = np.argsort(weight[:count], kind="mergesort")  # stable: equal weights keep pixel order
     parent = np.arange(pixels)
     size = np.ones(pixels, np.int64)
-    threshold = np.full(pixels, scale, np.float32)
-    for index in order:
-        a, b = _find(parent, first[index]), _find(parent, second[index])
-        if a != b and weight[index] <= threshold[a] and weight[index] <= threshold[b]:
-            if size[a] < size[b]:
-                a, b = b, a
-            parent[b] = a
-            size[a] += size[b]
-            threshold[a] = weight[index] + scale / size[a]
-    for index in order:  # small regions join the neighbour across their lightest edge
-        a, b = _find(parent, first[index]), _find(parent, second[index])
-        if a != b and (size[a] < min_size or size[b] < min_size):
-            if size[a] < size[b]:
-                a, b = b, a
-            parent[b] = a
-            size[a] += size[b]
-    labels = np.empty((height, width), np.int32)
-    relabel = np.full(pixels, -1, np.int64)
-    next_label = 0
-    for node in range(pixels):
-        root = _find(parent, node)
-        if relabel[root] < 0:
-            relabel[root] = next_label
-            next_label += 1
-        labels[node // width, node % width] = relabel[root]
+    internal = np.zeros(pixels, np.float32)  # heaviest edge inside each region (Kruskal order: the last merged)
+    labels = np.empty((levels, height, width), np.int32)
+    level_scale = scale
+    for level in range(levels):
+        for index in order:
+            a, b = _find(parent, first[index]), _find(parent, second[index])
+            if a != b and weight[index] <= internal[a] + level_scale / size[a] \
+                    and weight[index] <= internal[b] + level_scale / size[b]:
+                if size[a] < size[b]:
+                    a, b = b, a
+                parent[b] = a
+                size[a] += size[b]
+                internal[a] = weight[index]
+        for index in order:  # small regions join the neighbour across their lightest edge
+            a, b = _find(parent, first[index]), _find(parent, second[index])
+            if a != b and (size[a] < min_size or size[b] < min_size):
+                if size[a] < size[b]:
+                    a, b = b, a
+                parent[b] = a
+                size[a] += size[b]
+        relabel = np.full(pixels, -1, np.int64)
+        next_label = 0
+        for node in range(pixels):
+            root = _find(parent, node)
+            if relabel[root] < 0:
+                relabel[root] = next_label
+                next_label += 1
+            labels[level, node // width, node % width] = relabel[root]
+        level_scale *= level_factor
     return labels
