@@ -131,14 +131,19 @@ def segmenter_speed(run_dir: Path) -> dict[str, Any]:
 
 
 def predict_speed(run_dir: Path, work: Path) -> dict[str, Any]:
-    """End-to-end predict frames/s on 2 Ray workers, plain and self-prompting, 3 runs each."""
-    frames = sum(int(open_video(RunFolder(run_dir).video_store(e, n)).frames) for e, n in list_videos(run_dir))
-    out: dict[str, Any] = {"frames": frames}
+    """End-to-end predict frames/s on 2 Ray workers, plain and self-prompting, 3 runs each, on the two
+    videos (both heights) of the first house: one per worker."""
+    videos = list_videos(run_dir)
+    first_scene = videos[0][1].split(".")[0]
+    chosen = [(e, n) for e, n in videos if n.startswith(first_scene + ".")]
+    frames = sum(int(open_video(RunFolder(run_dir).video_store(e, n)).frames) for e, n in chosen)
+    out: dict[str, Any] = {"videos": [n for _, n in chosen], "frames": frames}
     for label in ("geometric", "geometric+sp"):
         rates = []
         for _ in range(REPEATS):
             started = time.perf_counter()
-            report = predict_run(run_dir, work / "speed" / label, MODELS[label], force=True)
+            report = predict_run(run_dir, work / "speed" / label, MODELS[label], videos=[n for _, n in chosen],
+                                 force=True)
             assert not report.failed
             rates.append(frames / (time.perf_counter() - started))
         out[label] = {"fps_2_workers": spread(rates)}
@@ -151,11 +156,12 @@ def main() -> None:
     """Render (or reuse), score, time, print and write the results JSON."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run-dir", type=Path, help="a rendered run to reuse (or where to render one)")
+    parser.add_argument("--work-dir", type=Path, help="prediction folders to reuse (or where to write them)")
     args = parser.parse_args()
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as scratch:
         run_dir = (args.run_dir or Path(scratch) / "run").resolve()
-        work = Path(scratch) / "work"
+        work = (args.work_dir or Path(scratch) / "work").resolve()
         render_seconds = render_run(run_dir)
         print(f"run {run_dir}: {len(list_videos(run_dir))} videos ({render_seconds:.0f} s to render or reuse)")
         print("VSQ (percent, published protocol):")

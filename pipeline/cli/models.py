@@ -108,7 +108,8 @@ def register(app: typer.Typer) -> None:
             videos = split_videos(run, split)
             with stage_progress() as observer:
                 path = write_model_report(run, [m.strip() for m in models.split(",") if m.strip()], out, embodiment,
-                                          videos, address=address, observer=observer)
+                                          videos, split if videos is not None else "all", address=address,
+                                          observer=observer)
         except _input_errors() as error:
             fail(str(error))
         except ReportError as error:

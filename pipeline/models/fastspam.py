@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from pipeline.models.segmenter import FrameInput, ModelError, Segmenter
+from pipeline.models.segmenter import FrameInput, ModelError, Segmenter, parse_options
 from pipeline.render.camera import pixels_inside, project, unproject
 
 
@@ -165,7 +165,7 @@ class FastSpam(Segmenter):
     def __init__(self, segmenter: Segmenter, **options: Any):
         self.segmenter = segmenter
         self.needs_ground_truth = segmenter.needs_ground_truth  # type: ignore[misc]  # the oracle inside still reads it
-        self.options = FastSpamOptions(**options)
+        self.options = parse_options(FastSpamOptions, "fastspam", options)
         self.memory: np.ndarray = np.zeros((0, 3))
         self._rng = np.random.default_rng(0)
 

@@ -20,9 +20,9 @@ from typing import Any
 
 import cv2
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
-from pipeline.models.segmenter import FrameInput, ModelError, Segmenter
+from pipeline.models.segmenter import FrameInput, ModelError, Segmenter, parse_options
 
 # Flickered ids start here: far above any object id of a generated scene or an HM3DSem colour.
 FLICKER_ID_BASE = 1 << 25
@@ -49,12 +49,7 @@ class OracleSegmenter(Segmenter):
     needs_ground_truth = True
 
     def __init__(self, **options: Any):
-        try:
-            self.options = OracleOptions(**options)
-        except ValidationError as error:
-            first = error.errors()[0]
-            raise ModelError(f"oracle option {'.'.join(str(p) for p in first['loc'])}: {first['msg']}; "
-                             f"options are {', '.join(OracleOptions.model_fields)}") from None
+        self.options = parse_options(OracleOptions, "oracle", options)
         self._rng = np.random.default_rng(0)
         self._next_flicker = FLICKER_ID_BASE
 

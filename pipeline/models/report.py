@@ -79,13 +79,13 @@ def _load_scores(path: Path, stamp: str, spec: str, protocol: VsqProtocol) -> Mo
 
 
 def score_model(run: RunFolder, spec: str, out: Path, embodiment: str, videos: Sequence[str] | None,
-                address: str | None, observer: Observer) -> ModelScores:
+                selection: str, address: str | None, observer: Observer) -> ModelScores:
     """Predict (what is missing) and evaluate (unless the stored scores are current) one model spec."""
     from pipeline.evaluate.api import evaluate_run
 
     config = ModelConfig.from_spec(spec)
     folder = out / "predictions" / spec
-    report = predict_run(run.root, folder, config, embodiment, videos, "all" if videos is None else "split",
+    report = predict_run(run.root, folder, config, embodiment, videos, selection,
                          address=address, on_start=observer.on_stage_start, on_unit=observer.on_unit)
     if observer.on_stage_end is not None:
         observer.on_stage_end(report)
@@ -108,9 +108,12 @@ def score_model(run: RunFolder, spec: str, out: Path, embodiment: str, videos: S
 
 
 def write_model_report(run_dir: str | Path, specs: Sequence[str], out: str | Path | None = None,
-                       embodiment: str | None = None, videos: Sequence[str] | None = None,
+                       embodiment: str | None = None, videos: Sequence[str] | None = None, selection: str = "all",
                        address: str | None = None, observer: Observer | None = None) -> Path:
-    """Predict, evaluate and write `report.md` + pictures for `specs` on one run; returns report.md's path."""
+    """Predict, evaluate and write `report.md` + pictures for `specs` on one run; returns report.md's path.
+
+    `videos` (with `selection`, the split's name) restricts the report to a split's videos.
+    """
     from pipeline.models.segmenter import ModelError
 
     run = RunFolder.open(run_dir)
@@ -122,11 +125,11 @@ def write_model_report(run_dir: str | Path, specs: Sequence[str], out: str | Pat
     target = Path(out) if out is not None else run.root / "report"
     target = target.expanduser().resolve()
     observer = observer or Observer()
-    scores = [score_model(run, spec, target, chosen, videos, address, observer) for spec in specs]
+    scores = [score_model(run, spec, target, chosen, videos, selection, address, observer) for spec in specs]
     pictures = [_plot_by_k(scores, target / "vsq_by_k.png"), _plot_by_height(scores, target / "vsq_by_height.png"),
                 _picture_strip(run, chosen, specs, target, target / "strip.png")]
     path = target / "report.md"
-    atomic_write_text(path, _markdown(run, chosen, scores, [p for p in pictures if p is not None], videos is not None))
+    atomic_write_text(path, _markdown(run, chosen, scores, [p for p in pictures if p is not None], selection))
     return path
 
 
@@ -154,11 +157,11 @@ def _heights(scores: list[ModelScores]) -> list[float]:
     return sorted({video_height_m(key) for s in scores for key in s.per_video}, reverse=True)
 
 
-def _markdown(run: RunFolder, embodiment: str, scores: list[ModelScores], pictures: list[Path], split: bool) -> str:
+def _markdown(run: RunFolder, embodiment: str, scores: list[ModelScores], pictures: list[Path], selection: str) -> str:
     videos = sorted({key for s in scores for key in s.per_video})
     lines = [f"# Model report: {run.root.name}", "",
              f"Run `{run.root}`, embodiment `{embodiment}`, {len(videos)} videos "
-             f"({'a split' if split else 'every video: the run has no split'}). VSQ in percent, the published "
+             f"({'split ' + selection if selection != 'all' else 'every video: the run has no split'}). VSQ in percent, the published "
              "protocol of the run's job (`evaluate` section). `+sp` = FastSPAM self-prompting around the segmenter. "
              "\"missing\" = nothing was counted (a video needs more than `window` frames to hold a window).", "",
              "## VSQ per model", "", *_header("model")]

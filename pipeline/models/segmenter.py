@@ -10,9 +10,12 @@ from __future__ import annotations
 import importlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
+from pydantic import BaseModel, ValidationError
+
+OptionsT = TypeVar("OptionsT", bound=BaseModel)
 
 
 class ModelError(ValueError):
@@ -65,6 +68,16 @@ class Segmenter(ABC):
     def segment_tracked(self, frame: FrameInput) -> tuple[np.ndarray, np.ndarray | None]:
         """(masks, ids): the masks of `segment` and, for trackers, one positive id per mask (else None)."""
         return self.segment(frame), None
+
+
+def parse_options(model: type[OptionsT], segmenter: str, options: dict[str, Any]) -> OptionsT:
+    """A segmenter's typed options from keyword arguments; ModelError naming the option and listing the valid ones."""
+    try:
+        return model(**options)
+    except ValidationError as error:
+        first = error.errors()[0]
+        raise ModelError(f"{segmenter} option {'.'.join(str(p) for p in first['loc'])}: {first['msg']}; "
+                         f"options are {', '.join(model.model_fields)}") from None
 
 
 # name -> "module:Class"; each class takes its options as keyword arguments.
