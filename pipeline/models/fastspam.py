@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numba
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -57,16 +58,21 @@ class MaskAtoms:
     def __init__(self, masks: np.ndarray):
         count, self.height, self.width = masks.shape
         pixels = self.height * self.width
-        if count == 0:
-            self.labels = np.zeros(pixels, np.int64)
-            self.membership = np.zeros((1, 0), bool)
+        flat = np.ascontiguousarray(masks.reshape(count, pixels))
+        words = _pack_words(flat) if count else np.zeros((1, pixels), np.uint64)
+        if len(words) == 1:  # up to 64 masks: one compiled pass labels atoms and sums their statistics
+            self.labels, distinct, self.counts, self.rows, self.columns = _label_words(words[0], self.width)
+            bits = (distinct[:, None] >> np.arange(count, dtype=np.uint64)[None, :]) & np.uint64(1)
+            self.membership = bits.astype(bool)
         else:
-            self.labels, self.membership = _atoms(masks.reshape(count, pixels))
-        atoms = self.membership.shape[0]
-        self.counts = np.bincount(self.labels, minlength=atoms).astype(np.int64)
-        index = np.arange(pixels)
-        self.rows = np.bincount(self.labels, weights=index // self.width, minlength=atoms)
-        self.columns = np.bincount(self.labels, weights=index % self.width, minlength=atoms)
+            self.labels, self.membership = _atoms(words, count)
+            atoms = self.membership.shape[0]
+            self.counts = np.bincount(self.labels, minlength=atoms).astype(np.int64)
+            index = np.arange(pixels)
+            self.rows = np.bincount(self.labels, weights=index // self.width, minlength=atoms)
+            self.columns = np.bincount(self.labels, weights=index % self.width, minlength=atoms)
+        # Empty everything-masks can hold no prompt: they are dropped here.
+        self.membership = self.membership[:, self.counts @ self.membership > 0]
 
     @property
     def masks(self) -> np.ndarray:
@@ -94,20 +100,76 @@ class MaskAtoms:
 
     def dense(self, sets: np.ndarray) -> np.ndarray:
         """(n, atoms) atom sets -> (n, H, W) bool masks."""
-        return sets[:, self.labels].reshape(len(sets), self.height, self.width)
+        return _dense(np.ascontiguousarray(sets, dtype=np.bool_), self.labels).reshape(len(sets), self.height, self.width)
 
 
-def _atoms(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(masks, pixels) bool -> (atom label per pixel, membership (atoms, masks)).
-
-    Each pixel's membership is packed into 64-bit words; labels change rarely along a row, so the
-    distinct words are found among runs of equal words, not among all pixels.
-    """
+@numba.njit(cache=True)
+def _pack_words(flat: np.ndarray) -> np.ndarray:
+    """(masks, pixels) bool -> (ceil(masks / 64), pixels) uint64: bit i % 64 of word i // 64 = in mask i."""
     count, pixels = flat.shape
-    packed = np.packbits(flat, axis=0)  # (bytes, pixels), mask 8b + j in byte b at bit 7 - j
-    words = np.zeros(((packed.shape[0] + 7) // 8, pixels), np.uint64)
-    for byte in range(packed.shape[0]):
-        words[byte // 8] |= packed[byte].astype(np.uint64) << np.uint64(8 * (byte % 8))
+    words = np.zeros(((count + 63) // 64, pixels), np.uint64)
+    for index in range(count):
+        word, bit = index // 64, np.uint64(1) << np.uint64(index % 64)
+        for pixel in range(pixels):
+            if flat[index, pixel]:
+                words[word, pixel] |= bit
+    return words
+
+
+@numba.njit(cache=True)
+def _label_words(words: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One word per pixel -> (atom labels in first-seen order, atom words, pixel counts, row sums, column sums)."""
+    pixels = words.shape[0]
+    table = numba.typed.Dict.empty(key_type=numba.types.uint64, value_type=numba.types.int64)
+    labels = np.empty(pixels, np.int64)
+    distinct = np.empty(pixels, np.uint64)
+    current, previous = -1, np.uint64(0)
+    for pixel in range(pixels):
+        word = words[pixel]
+        if pixel == 0 or word != previous:  # words come in long runs: look up only where they change
+            if word in table:
+                current = table[word]
+            else:
+                current = len(table)
+                table[word] = current
+                distinct[current] = word
+            previous = word
+        labels[pixel] = current
+    atoms = len(table)
+    counts = np.zeros(atoms, np.int64)
+    rows = np.zeros(atoms, np.float64)
+    columns = np.zeros(atoms, np.float64)
+    for pixel in range(pixels):
+        atom = labels[pixel]
+        counts[atom] += 1
+        rows[atom] += pixel // width
+        columns[atom] += pixel % width
+    return labels, distinct[:atoms].copy(), counts, rows, columns
+
+
+@numba.njit(cache=True)
+def _dense(sets: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """(n, atoms) atom sets -> (n, pixels) masks, filled run by run of equal labels (10x a per-pixel gather)."""
+    count, pixels = sets.shape[0], labels.shape[0]
+    out = np.zeros((count, pixels), np.bool_)
+    start = 0
+    for pixel in range(1, pixels + 1):
+        if pixel == pixels or labels[pixel] != labels[start]:
+            atom = labels[start]
+            for index in range(count):
+                if sets[index, atom]:
+                    out[index, start:pixel] = True
+            start = pixel
+    return out
+
+
+def _atoms(words: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Several words per pixel (more than 64 masks) -> (atom label per pixel, membership (atoms, masks)).
+
+    Labels change rarely along a row, so the distinct words are found among runs of equal words,
+    not among all pixels.
+    """
+    pixels = words.shape[1]
     change = np.zeros(pixels, bool)
     change[0] = True
     change[1:] = (words[:, 1:] != words[:, :-1]).any(axis=0)
@@ -115,8 +177,8 @@ def _atoms(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     lengths = np.diff(np.append(starts, pixels))
     distinct, inverse = np.unique(words[:, starts].T, axis=0, return_inverse=True)
     labels = np.repeat(inverse.reshape(-1), lengths).astype(np.int64)
-    # Little-endian words back to bytes in packbits order, then to one bit per mask.
-    membership = np.unpackbits(np.ascontiguousarray(distinct.astype("<u8")).view(np.uint8), axis=1)[:, :count]
+    index = np.arange(count)
+    membership = (distinct[:, index // 64] >> (index % 64).astype(np.uint64)) & np.uint64(1)
     return labels, membership.astype(bool)
 
 
@@ -182,9 +244,7 @@ class FastSpam(Segmenter):
         if frame.depth is None or frame.pose is None or frame.intrinsics is None:
             raise ModelError("self-prompting needs every frame's depth, camera pose and intrinsics; "
                              "predict from a rendered run, or drop --self-prompting")
-        everything = self.segmenter.segment(frame)
-        everything = everything[everything.reshape(len(everything), -1).any(axis=1)]
-        atoms = MaskAtoms(everything)
+        atoms = MaskAtoms(self.segmenter.segment(frame))
         prompts = self._reprojected_prompts(frame)
         if not prompts:
             outputs = _by_area(atoms, atoms.masks)

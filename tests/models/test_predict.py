@@ -100,9 +100,14 @@ def test_unknown_model_or_missing_extra_exits_2_and_writes_nothing(run_root, tmp
         assert result.exit_code == 2, result.output
         assert len(result.output.strip().splitlines()) == 1
         assert not (tmp_path / "out").exists()
-    result = invoke("predict", run_root, "--model", "geometric", "--embodiment", "ambient", "--out", tmp_path / "out",
-                    "--model-file", tmp_path / "none.yaml")
-    assert result.exit_code == 2 and not (tmp_path / "out").exists()
+    result = invoke("predict", run_root, "--model-file", tmp_path / "none.yaml", "--embodiment", "ambient",
+                    "--out", tmp_path / "out")
+    assert result.exit_code == 2 and "none.yaml: model file not found" in result.output
+    (tmp_path / "bad.yaml").write_text("name: geometric\noptions: {scale: -3}\n")
+    result = invoke("predict", run_root, "--model-file", tmp_path / "bad.yaml", "--embodiment", "ambient",
+                    "--out", tmp_path / "out")
+    assert result.exit_code == 2 and "geometric option scale" in result.output
+    assert not (tmp_path / "out").exists()
 
 
 def test_self_prompting_on_a_run_without_poses_exits_2_and_writes_nothing(run_root, tmp_path) -> None:
