@@ -10,14 +10,16 @@ heavier than each region's internal difference + scale / size) grows regions; re
 downscaled frame (numba, one core) and the labels are upsampled by nearest neighbour.
 
 Good at: walls, floors, ceilings and furniture separated by depth or creases; untextured generated
-scenes; stable output for small camera motion (no learned noise), ~20 ms per 640x480 frame.
+scenes; stable output for small camera motion (no learned noise); fast (45 ms per 640x480 frame on
+one core of a loaded machine, benchmarks/results/models.json).
 Bad at: objects flush with their support and of similar colour (a rug on a floor, a picture on a
 wall, a closed door in its wall), thin objects below the working resolution, strongly textured
 surfaces (split into many regions), and depth-less pixels (windows, beyond the far clip), which only
 colour separates. It knows nothing of objects: a chair's seat and back may become two regions.
 
-scikit-image's `felzenszwalb` was not used: it sees colour only (no depth or normals) and takes
-~150 ms per 320x240 frame, where this compiled version takes ~10 ms including the features.
+scikit-image's `felzenszwalb` was not used (no new dependency): it takes one multichannel image and a
+single Euclidean edge weight, so depth jumps would have to be scaled into fake colour channels, and
+the point-to-plane and normal terms, which keep slanted floors whole, cannot be expressed.
 """
 
 from __future__ import annotations

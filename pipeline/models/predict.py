@@ -252,8 +252,8 @@ def predict_run(run_dir: str | Path, out: str | Path, model: ModelConfig, embodi
     if model.self_prompting:
         check_self_prompting_inputs(stage, source)
     out = Path(out).expanduser().resolve()
-    if out == source.root or source.root in out.parents:
-        raise PredictionInputError(f"{out}: inside the run folder {source.root}; predictions go to a folder of their own")
+    if out == source.root or out in source.root.parents:
+        raise PredictionInputError(f"{out}: is or holds the run folder {source.root}; predictions go to a folder of their own")
     identity = inputs.identity(job.hash())
     check_output_folder(out, identity)
     target = RunFolder.create(out, job)
