@@ -17,7 +17,7 @@ import json
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -137,7 +137,8 @@ def write_model_report(run_dir: str | Path, specs: Sequence[str], out: str | Pat
 
 
 def _percent(value: float | None) -> str:
-    return "missing" if value is None else f"{100 * value:.2f}"
+    # + 0.0 turns the -0.0 of a difference of equal sums added in another order into 0.00
+    return "missing" if value is None else f"{round(100 * value, 2) + 0.0:.2f}"
 
 
 def _row(label: str, values: dict[str, float | None]) -> str:
@@ -187,10 +188,24 @@ def _markdown(run: RunFolder, embodiment: str, scores: list[ModelScores], pictur
         for base, prompted in pairs:
             a, b = by_spec[base].summary()[AGGREGATE], by_spec[prompted].summary()[AGGREGATE]
             lines += [_row(base, a), _row(prompted, b), _row(f"{prompted} - {base}", _difference(b, a))]
+        same = [base for base, prompted in pairs if _same_counts(by_spec[base], by_spec[prompted])]
+        if same:
+            lines += ["", f"{', '.join(same)}: identical counts with and without self-prompting. Expected when the "
+                      "segmenter's masks partition each frame (`geometric` with `levels: 1`): every region is either "
+                      "selected by a carried prompt or seeds itself, so the set of masks is unchanged; self-prompting "
+                      "matters for overlapping masks (`levels: 2`, FastSAM, SAM)."]
     else:
         lines.append("no pair: list a model with and without `+sp` (e.g. geometric,geometric+sp) to compare.")
     lines += ["", "## Pictures", ""] + [f"![{p.stem}]({p.name})" for p in pictures]
     return "\n".join(lines) + "\n"
+
+
+def _same_counts(a: ModelScores, b: ModelScores) -> bool:
+    """Whether two models have the same TP / FP / FN in every video, bucket and k."""
+    def counts(s: ModelScores) -> dict[str, Any]:
+        return {key: {bucket: {k: (c.tp, c.fp, c.fn) for k, c in per_k.items()} for bucket, per_k in v.buckets.items()}
+                for key, v in s.per_video.items()}
+    return counts(a) == counts(b)
 
 
 # ---------------------------------------------------------------------------------- pictures
@@ -251,8 +266,10 @@ def _colour_masks(masks: np.ndarray) -> np.ndarray:
 
 
 def _colour_ids(ids: np.ndarray) -> np.ndarray:
+    """Id image -> RGB with one fixed colour per id (the same object keeps its colour in every frame); 0 black."""
     unique, inverse = np.unique(ids, return_inverse=True)
-    palette = np.random.default_rng(11).integers(40, 256, size=(len(unique), 3), dtype=np.uint8)
+    mixed = unique.astype(np.uint64)[:, None] * np.array([2654435761, 2246822519, 3266489917], np.uint64)
+    palette = (40 + (mixed >> np.uint64(13)) % np.uint64(216)).astype(np.uint8)
     palette[unique == 0] = 0
     return palette[inverse.reshape(ids.shape)]
 
