@@ -17,7 +17,7 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import yaml
@@ -27,7 +27,7 @@ from pipeline.config import Job, config_hash
 from pipeline.evaluate.predictions import RLE_FOLDER
 from pipeline.models.fastspam import FastSpam, FastSpamOptions
 from pipeline.models.segmenter import SEGMENTERS, FrameInput, ModelError, Segmenter, make_segmenter
-from pipeline.runtime.executor import ProgressCallback, StageReport, run_stage
+from pipeline.runtime.executor import ProgressCallback, StagePlan, StageReport, run_stage
 from pipeline.runtime.lock import RunLock
 from pipeline.runtime.run_folder import JOB_FILE, RunFolder, atomic_write_text
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
@@ -236,7 +236,8 @@ def check_output_folder(out: Path, identity: dict[str, Any]) -> None:
 
 def predict_run(run_dir: str | Path, out: str | Path, model: ModelConfig, embodiment: str | None = None,
                 videos: Sequence[str] | None = None, selection: str = "all", force: bool = False,
-                address: str | None = None, on_start: Any = None, on_unit: ProgressCallback | None = None) -> StageReport:
+                address: str | None = None, on_start: Callable[[StagePlan], None] | None = None,
+                on_unit: ProgressCallback | None = None) -> StageReport:
     """Predict the rendered videos of a run (or the named `videos`) with `model` into the folder `out`.
 
     Every check (model, run, depth and poses for self-prompting, output folder) happens before anything
@@ -261,12 +262,4 @@ def predict_run(run_dir: str | Path, out: str | Path, model: ModelConfig, embodi
                                                     sort_keys=True))
     with RunLock(target.root):
         return run_stage(stage, target, force=force, address=address, on_start=on_start, on_unit=on_unit)
-
-
-def prediction_manifest(folder: str | Path) -> dict[str, Any] | None:
-    """The identity recorded in a prediction folder, or None when it has none."""
-    path = Path(folder) / MANIFEST
-    if not path.is_file():
-        return None
-    return (yaml.safe_load(path.read_text(encoding="utf-8")) or {}).get("identity")
 
