@@ -336,7 +336,7 @@ class RuntimeConfig(Strict):
     max_retries: int = Field(3, ge=0, description="retries of a unit whose worker died (not of its errors)")
     inline_seconds: float = Field(4.0, ge=0, allow_inf_nan=False, description="executor auto: a stage whose remaining "
                                   "work is projected below this many seconds runs in-process instead of starting Ray")
-    resources: dict[Literal["shard", "plan", "render", "screen", "split", "evaluate", "import"], StageResources] = Field(default_factory=dict)
+    resources: dict[Literal["shard", "plan", "render", "screen", "split", "evaluate", "import", "predict"], StageResources] = Field(default_factory=dict)
 
     def for_stage(self, stage: str) -> StageResources:
         return self.resources.get(stage, StageResources())  # type: ignore[call-overload]

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from pipeline.cli import evaluate, mvpd_io, plan, render, run_commands, scenes, view
+from pipeline.cli import evaluate, models, mvpd_io, plan, render, run_commands, scenes, view
 from pipeline.cli.console import HELP_SETTINGS, FullHelpGroup
 from pipeline.runtime.ray_session import stop_on_sigterm
 
@@ -34,7 +34,7 @@ def main(
     stop_on_sigterm()
 
 
-for area in (run_commands, scenes, plan, render, evaluate, mvpd_io, view):
+for area in (run_commands, scenes, plan, render, evaluate, mvpd_io, models, view):
     area.register(app)
 
 

@@ -124,6 +124,9 @@ def demo(
     console.print(f'[bold]query:[/] mvpd query {run_dir} "select embodiment, count(*) videos, sum(frames) frames '
                   'from videos group by 1"')
     stats(run_dir)
+    from pipeline.cli.models import demo_model_report
+
+    demo_model_report(run_dir, address)
     _finish(report)
 
 

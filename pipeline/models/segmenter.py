@@ -10,9 +10,12 @@ from __future__ import annotations
 import importlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
+from pydantic import BaseModel, ValidationError
+
+OptionsT = TypeVar("OptionsT", bound=BaseModel)
 
 
 class ModelError(ValueError):
@@ -29,6 +32,7 @@ class FrameInput:
         intrinsics: (fx, fy, cx, cy) in pixels, pixel centres at u + 0.5; None when unknown.
         panoptic: (H, W) uint32 ground-truth ids; only the `oracle` segmenter reads it.
         index: frame index t within the video (for seeded per-frame draws).
+        pose: (4, 4) camera-to-world (OpenCV camera axes); None when unknown. FastSPAM needs it.
     """
 
     rgb: np.ndarray
@@ -36,6 +40,7 @@ class FrameInput:
     intrinsics: tuple[float, float, float, float] | None = None
     panoptic: np.ndarray | None = None
     index: int = 0
+    pose: np.ndarray | None = None
 
 
 class Segmenter(ABC):
@@ -52,6 +57,28 @@ class Segmenter(ABC):
         """Name and options, recorded with the predictions (JSON-able)."""
         return {"name": self.name}
 
+    @property
+    def tracked(self) -> bool:
+        """Whether `segment_tracked` gives ids (a tracker); per-frame segmenters give None."""
+        return False
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """Start a new video: forget any memory; `rng` (seeded per video) is the only source of randomness."""
+
+    def segment_tracked(self, frame: FrameInput) -> tuple[np.ndarray, np.ndarray | None]:
+        """(masks, ids): the masks of `segment` and, for trackers, one positive id per mask (else None)."""
+        return self.segment(frame), None
+
+
+def parse_options(model: type[OptionsT], segmenter: str, options: dict[str, Any]) -> OptionsT:
+    """A segmenter's typed options from keyword arguments; ModelError naming the option and listing the valid ones."""
+    try:
+        return model(**options)
+    except ValidationError as error:
+        first = error.errors()[0]
+        raise ModelError(f"{segmenter} option {'.'.join(str(p) for p in first['loc'])}: {first['msg']}; "
+                         f"options are {', '.join(model.model_fields)}") from None
+
 
 # name -> "module:Class"; each class takes its options as keyword arguments.
 SEGMENTERS: dict[str, str] = {
@@ -67,4 +94,9 @@ def make_segmenter(name: str, **options: Any) -> Segmenter:
     if name not in SEGMENTERS:
         raise ModelError(f"unknown model {name!r}; models are {', '.join(SEGMENTERS)}")
     module, _, attribute = SEGMENTERS[name].partition(":")
-    return getattr(importlib.import_module(module), attribute)(**options)
+    try:
+        implementation = importlib.import_module(module)
+    except ModuleNotFoundError as error:
+        raise ModelError(f"model {name!r} needs the Python package {error.name!r}, which is not installed; "
+                         f"install the model's extra (see README, Models)") from None
+    return getattr(implementation, attribute)(**options)

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.render.camera import pixel_rays
 from pipeline.render.embree import EmbreeMesh
 from pipeline.scenes.scene import Scene
 
@@ -44,9 +45,12 @@ class Camera:
 
     def pixel_axes(self) -> tuple[np.ndarray, np.ndarray]:
         """float64 camera-frame x per image column (W,) and y per image row (H,) of the pixel-centre rays."""
-        x = (np.arange(self.width, dtype=np.float64) + 0.5 - self.cx) / self.fx
-        y = (np.arange(self.height, dtype=np.float64) + 0.5 - self.cy) / self.fy
-        return x, y
+        return pixel_rays(np.arange(self.width), np.arange(self.height), self.intrinsics)
+
+    @property
+    def intrinsics(self) -> tuple[float, float, float, float]:
+        """(fx, fy, cx, cy) in pixels, as `pipeline.render.camera` takes them."""
+        return (self.fx, self.fy, self.cx, self.cy)
 
     def directions(self) -> np.ndarray:
         """(H, W, 3) float64 camera-frame ray directions through pixel centres, with z = 1."""

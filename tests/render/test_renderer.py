@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.io.segments import frame_segments
+from pipeline.render.camera import pixels_inside, project, unproject
 from pipeline.render.renderer import VideoRenderer
 from tests.render.tiny_scenes import CHAIR, TABLE, embodiment, look_at, room_scene
 
@@ -24,15 +25,10 @@ def _reprojection_agreement(renderer: VideoRenderer, pose_a: np.ndarray, pose_b:
     camera = renderer.camera
     v, u = np.nonzero(frame_a.depth)
     z = frame_a.depth[v, u] / 1000.0
-    points_camera = np.stack([(u + 0.5 - camera.cx) / camera.fx * z, (v + 0.5 - camera.cy) / camera.fy * z, z], 1)
-    world = points_camera @ pose_a[:3, :3].T + pose_a[:3, 3]
-    inverse_b = np.linalg.inv(pose_b)
-    in_b = world @ inverse_b[:3, :3].T + inverse_b[:3, 3]
-    x = camera.fx * in_b[:, 0] / in_b[:, 2] + camera.cx
-    y = camera.fy * in_b[:, 1] / in_b[:, 2] + camera.cy
-    column, row = np.floor(x).astype(int), np.floor(y).astype(int)
-    inside = (in_b[:, 2] > 0) & (column >= 0) & (column < camera.width) & (row >= 0) & (row < camera.height)
-    column, row, ids_a, z_b = column[inside], row[inside], frame_a.panoptic[v, u][inside], in_b[inside, 2]
+    world = unproject(u, v, z, camera.intrinsics, pose_a)
+    x, y, z_projected = project(world, camera.intrinsics, pose_b)
+    column, row, inside = pixels_inside(x, y, z_projected, camera.width, camera.height)
+    column, row, ids_a, z_b = column[inside], row[inside], frame_a.panoptic[v, u][inside], z_projected[inside]
     # Visible in both: frame b's depth at the projected pixel matches the point's depth (not occluded).
     depth_b = frame_b.depth[row, column] / 1000.0
     visible = np.abs(depth_b - z_b) < 0.02 + 0.02 * z_b
