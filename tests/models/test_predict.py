@@ -32,9 +32,10 @@ def small_and_thin_run(root: Path) -> Path:
     """A hand-made 64 x 48 run: a large object, a 2-pixel one (< 0.1 % of the frame) and a one-pixel-wide
     line on an odd column (gone at half resolution), drifting right one pixel per frame."""
     from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources
-    from pipeline.io.tables import to_table, write_part
+    from pipeline.io.tables import to_table
     from pipeline.io.zarr_video import VideoWriter
-    from pipeline.runtime.run_folder import Marker, RunFolder
+    from pipeline.runtime.executor import commit_tables
+    from pipeline.runtime.run_folder import RunFolder
 
     name = "hand.0000000000.0000001000"
     job = Job(name="hand", scenes=SceneSources(procedural=ProceduralSource(count=1)), embodiments=[Embodiment(name="cam")])
@@ -53,8 +54,7 @@ def small_and_thin_run(root: Path) -> Path:
            "illumination": "ambient", "sensor_model": "ideal", "frames": FRAMES, "width": 64, "height": 48, "fx": 50.0,
            "fy": 50.0, "cx": 32.0, "cy": 24.0, "exposure": 1.0, "store_path": f"videos/cam/{name}.zarr", "bytes": 0,
            "render_seconds": 0.0}
-    write_part(run.root, "videos", f"cam.{name}", to_table("videos", [row]))
-    run.write_marker(Marker("render", f"cam.{name}", "test", "test", [], {"videos": 1}, 0.0, 1, "test", 0.0))
+    commit_tables(run, "render", f"cam.{name}", {"videos": to_table("videos", [row])})
     return run.root
 
 
@@ -110,6 +110,19 @@ def test_unknown_model_or_missing_extra_exits_2_and_writes_nothing(run_root, tmp
     assert not (tmp_path / "out").exists()
 
 
+def reseal(root: Path, stage: str, unit: str) -> None:
+    """Record a unit's edited outputs in its marker, as if the unit had committed them so."""
+    from dataclasses import replace
+
+    from pipeline.runtime.markers import describe_files
+    from pipeline.runtime.run_folder import RunFolder
+
+    run = RunFolder(root)
+    marker = run.marker(stage, unit)
+    assert marker is not None
+    run.write_marker(replace(marker, files=describe_files(run.root, marker.outputs)))
+
+
 def test_self_prompting_on_a_run_without_poses_exits_2_and_writes_nothing(run_root, tmp_path) -> None:
     copy = tmp_path / "run"
     shutil.copytree(run_root, copy)
@@ -118,6 +131,7 @@ def test_self_prompting_on_a_run_without_poses_exits_2_and_writes_nothing(run_ro
     attributes = dict(group.attrs)
     del attributes["poses"]
     group.attrs.put(attributes)
+    reseal(copy, "render", f"ambient.{store.stem}")  # a run rendered without poses, not a damaged one
     result = invoke("predict", copy, "--model", "geometric", "--self-prompting", "--embodiment", "ambient",
                     "--out", tmp_path / "out")
     assert result.exit_code == 2 and "no poses" in result.output and "drop --self-prompting" in result.output
@@ -146,6 +160,7 @@ def test_a_segmenter_failing_on_one_video_fails_that_unit_only(run_root, tmp_pat
     shutil.copytree(run_root, copy)
     broken = sorted((copy / "videos" / "ambient").glob("*.zarr"))[0]
     shutil.rmtree(broken / "panoptic")  # the oracle cannot read this video's ground truth
+    reseal(copy, "render", f"ambient.{broken.stem}")  # committed so: the failure is the segmenter's, not damage
     result = invoke("predict", copy, "--model", "oracle", "--embodiment", "ambient", "--out", tmp_path / "out")
     assert result.exit_code == 1, result.output
     assert "1 done, 1 failed" in result.output
