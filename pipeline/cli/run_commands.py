@@ -181,7 +181,7 @@ def status(
         state = run_state(run)
     except USAGE_ERRORS as error:
         fail(str(error))
-    table = Table("stage", "units", "done", "stale", "failed", "damaged", "pending", title=str(run.root))
+    table = Table("stage", "units", "done", "stale", "failed", "damaged", "pending", title=run.location)
     for stage in state.stages:
         table.add_row(stage.stage, str(stage.total), str(len(stage.done)), str(len(stage.stale)), str(len(stage.failed)),
                       str(len(stage.damaged)),

@@ -97,6 +97,11 @@ class LoadedVideo:
 
 def _run_root(run: Any) -> Path:
     """The root folder of a RunFolder or of a path (a Path's own `.root` is "/", so test for paths first)."""
+    from pipeline.runtime.object_store import remote_url
+    from pipeline.runtime.run_folder import RunFolder
+
+    if isinstance(run, (str, os.PathLike)) and remote_url(run) is not None:
+        return RunFolder.open(run).root  # an object-store URL: its working copy, brought up to date
     path = run if isinstance(run, (str, os.PathLike)) else run.root
     return Path(path).expanduser().resolve()
 

@@ -140,6 +140,8 @@ def retire_units(run: RunFolder, stage: str, unit_ids: list[str]) -> None:
         marker = run.marker(stage, unit_id)
         run.drop_marker(stage, unit_id)
         run.commit(run.staging(stage, unit_id), [], marker.outputs if marker else [])
+        if run.store is not None and marker is not None:
+            run.store.remove(sorted(marker.keys.values()))
 
 
 ProgressCallback = Callable[[UnitOutcome], None]
@@ -170,6 +172,8 @@ def run_stage(stage: Stage, run: RunFolder, force: bool = False, address: str | 
                               markers[u.id].attempt if u.id in markers else 0)
                 for u in plan.to_run}
     outcomes = run_units(stage, run, plan.to_run, attempts, executor, address, on_unit) if plan.to_run else []
+    if outcomes:
+        run.refresh([stage.name])  # a remote run: the workers' commits, from the store's markers
     statuses = {unit: outcome for (_, unit), outcome in previous.items() if unit in {u.id for u in plan.units}}
     statuses.update({o.unit: o for o in outcomes})
     write_status(run.root, stage.name, statuses)

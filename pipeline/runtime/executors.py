@@ -11,11 +11,13 @@ enforced, which is why only small work runs inline unless `--executor local` ask
 from __future__ import annotations
 
 import logging
+import os
 import sys
 import time
 from typing import Callable, Literal
 
 from pipeline.runtime.attempt import append_to_unit_log, execute_unit
+from pipeline.runtime.object_store import STORAGE_ENVIRONMENT
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit
 from pipeline.runtime.status import UnitOutcome
@@ -78,6 +80,17 @@ def _run_adaptively(stage: Stage, run: RunFolder, units: list[Unit], attempts: d
 # ------------------------------------------------------------------------------------------ Ray
 
 
+def storage_runtime_env(run: RunFolder) -> dict:
+    """For a run on object storage: the driver's storage variables (endpoint, credentials) for the workers.
+
+    Passed in memory to Ray, never written into the run; on a cluster they are usually set on every node.
+    """
+    if run.store is None:
+        return {}
+    env = {name: os.environ[name] for name in STORAGE_ENVIRONMENT if name in os.environ}
+    return {"runtime_env": {"env_vars": env}} if env else {}
+
+
 def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[str, int], address: str | None,
                on_unit: ProgressCallback) -> list[UnitOutcome]:
     """One Ray task per unit, a bounded number in flight; a dead worker's unit is retried by Ray."""
@@ -90,6 +103,7 @@ def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[s
     task = ray.remote(execute_unit).options(
         num_cpus=resources.cpus, memory=int(resources.memory_gb * 2**30),
         max_retries=stage.job.runtime.max_retries, retry_exceptions=False, name=f"mvpd.{stage.name}",
+        **storage_runtime_env(run),
     )
     stage_ref = ray.put(stage)
     limit = stage.job.runtime.max_in_flight or max(1, int(ray.cluster_resources().get("CPU", 1) // resources.cpus))
@@ -99,7 +113,7 @@ def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[s
     while pending or in_flight:
         while pending and len(in_flight) < limit:
             unit = pending.pop()
-            in_flight[task.remote(stage_ref, str(run.root), unit, attempts[unit.id])] = (unit, time.monotonic())
+            in_flight[task.remote(stage_ref, run.location, unit, attempts[unit.id])] = (unit, time.monotonic())
         ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=1.0)
         for ref in ready:
             unit, _ = in_flight.pop(ref)

@@ -60,6 +60,9 @@ class Marker:
     info: dict[str, Any] = field(default_factory=dict)
     files: list[OutputFile] = field(default_factory=list)
     version: int = MARKER_VERSION
+    # On object storage: logical path of each file -> its key, unique to the unit and attempt (relative
+    # to the run's prefix). Empty on local disk, where files are renamed to their logical paths.
+    keys: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -126,15 +129,9 @@ def marker_path(root: Path, stage: str, unit: str) -> Path:
 def read_marker(path: Path) -> Marker | None:
     """The marker at `path`, or None when it is missing, unreadable or from before manifests (version 1)."""
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-        if data.get("version", 1) < MARKER_VERSION:
-            return None  # no manifest: nothing can be checked, so it proves nothing; the unit runs again
-        data["files"] = [OutputFile(**f) for f in data["files"]]
-        return Marker(**data)
-    except FileNotFoundError:
+        return parse_marker(path.read_text(encoding="utf-8"))
+    except (FileNotFoundError, UnicodeDecodeError):
         return None
-    except (ValueError, TypeError, KeyError, AttributeError):
-        return None  # a damaged marker proves nothing: the unit runs again
 
 
 def stage_markers(root: Path, stage: str) -> dict[str, Marker]:
@@ -156,7 +153,27 @@ def write_marker(root: Path, marker: Marker) -> None:
             entry.parent.mkdir(parents=True, exist_ok=True)
             entry.touch()
     clear_damage(root, marker.stage, marker.unit)
-    atomic_write_text(marker_path(root, marker.stage, marker.unit), json.dumps(asdict(marker), indent=1, sort_keys=True))
+    atomic_write_text(marker_path(root, marker.stage, marker.unit), marker_text(marker))
+
+
+def marker_text(marker: Marker) -> str:
+    """The marker as JSON (`keys` only on object storage, so local markers are as before)."""
+    data = asdict(marker)
+    if not data["keys"]:
+        del data["keys"]
+    return json.dumps(data, indent=1, sort_keys=True)
+
+
+def parse_marker(text: str) -> Marker | None:
+    """A marker from its JSON text; None when unreadable or from before manifests (version 1)."""
+    try:
+        data = json.loads(text)
+        if data.get("version", 1) < MARKER_VERSION:
+            return None  # no manifest: nothing can be checked, so it proves nothing; the unit runs again
+        data["files"] = [OutputFile(**f) for f in data["files"]]
+        return Marker(**data)
+    except (ValueError, TypeError, KeyError, AttributeError):
+        return None  # a damaged marker proves nothing: the unit runs again
 
 
 def drop_marker(root: Path, stage: str, unit: str) -> None:

@@ -7,10 +7,15 @@ Layout (see schemas/README.md):
     _state/<stage>/<unit>.json  markers: the only proof that a unit is done
     _staging/<stage>/<unit>/    where a running unit writes before its commit
     logs/<stage>/<unit>.log
+
+The folder may also be an object-store URL (`s3://bucket/prefix`, `memory://...`): the run is then
+worked on through a local working copy that markers keep in step with the store
+(`pipeline.runtime.object_store`); everything below reads and writes that copy, and a commit uploads.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 import socket
@@ -29,11 +34,25 @@ from pipeline.runtime.markers import (  # noqa: F401 - Marker and atomic_write_t
     atomic_write_text,
     code_version,
     describe_files,
+    parse_marker,
+)
+from pipeline.runtime.object_store import (
+    ATTEMPTS,
+    REMOTE_FILE,
+    RunStore,
+    StoreError,
+    attempt_id,
+    cache_folder,
+    local_path,
+    remote_url,
+    working_copy_url,
 )
 from pipeline.runtime.tables import read_dataset
 
 JOB_FILE = "job.yaml"
 STAGING = "_staging"
+
+log = logging.getLogger(__name__)
 
 
 class RunFolderError(ValueError):
@@ -41,16 +60,37 @@ class RunFolderError(ValueError):
 
 
 class RunFolder:
-    """A run folder on local disk (or a shared file system mounted on every Ray node)."""
+    """A run folder on local disk, a shared file system, or an object store (through a local working copy).
+
+    `root` is always a local folder (the run itself, or the working copy of a remote run); `store` is the
+    object-store side of a remote run (None on local disk) and `location` what a worker is handed.
+    """
 
     def __init__(self, root: str | Path):
-        self.root = Path(root).expanduser().resolve()
+        url = remote_url(root)
+        if url is None:
+            self.root = local_path(root).expanduser().resolve()
+            url = working_copy_url(self.root)
+        else:
+            self.root = cache_folder(url).resolve()
+            self.root.mkdir(parents=True, exist_ok=True)
+            if working_copy_url(self.root) != url:
+                atomic_write_text(self.root / REMOTE_FILE, url)
+        self.store = RunStore(url) if url else None
+        self.location = self.store.url if self.store else str(self.root)
 
     # ------------------------------------------------------------------------------------ job
     @classmethod
     def prepare(cls, root: str | Path) -> "RunFolder":
         """Create the folder (or reopen a run); refuses a non-empty folder that is not a run."""
         run = cls(root)
+        if run.store is not None:
+            run._check_store()
+            if not run.store.exists(JOB_FILE) and run.store.exists(""):
+                raise RunFolderError(f"{run.location}: exists, is not empty and has no {JOB_FILE}; "
+                                     "choose an empty or new prefix")
+            run.refresh()
+            return run
         if run.root.exists() and not run.root.is_dir():
             raise RunFolderError(f"{run.root}: is a file, not a run folder; choose a folder path")
         is_run = (run.root / JOB_FILE).is_file() or (run.root / STATE).is_dir()
@@ -73,6 +113,12 @@ class RunFolder:
     @classmethod
     def open(cls, root: str | Path) -> "RunFolder":
         run = cls(root)
+        if run.store is not None:
+            run._check_store()
+            if not run.store.exists(JOB_FILE):
+                raise RunFolderError(f"{run.location}: not a run folder (no {JOB_FILE}); give the URL `mvpd submit` wrote")
+            run.refresh()
+            return run
         if not (run.root / JOB_FILE).is_file():
             raise RunFolderError(f"{run.root}: not a run folder (no {JOB_FILE}); give the folder `mvpd submit` wrote")
         return run
@@ -80,6 +126,8 @@ class RunFolder:
     def save_job(self, job: Job) -> None:
         text = yaml.safe_dump({"job_hash": job.hash(), "job": job.resolved()}, sort_keys=False)
         atomic_write_text(self.root / JOB_FILE, text)
+        if self.store is not None:
+            self.store.put_text(JOB_FILE, text)
 
     def job(self) -> Job:
         try:
@@ -113,9 +161,14 @@ class RunFolder:
         return marker_files.stage_markers(self.root, stage)
 
     def write_marker(self, marker: Marker) -> None:
+        """Write the marker, on the store last of all the unit's objects (the commit point)."""
+        if self.store is not None:
+            self.store.put_text(self._marker_key(marker.stage, marker.unit), marker_files.marker_text(marker))
         marker_files.write_marker(self.root, marker)
 
     def drop_marker(self, stage: str, unit: str) -> None:
+        if self.store is not None:  # the store first: a copy that still has the marker is refreshed from it
+            self.store.remove([self._marker_key(stage, unit)])
         marker_files.drop_marker(self.root, stage, unit)
 
     # --------------------------------------------------------------------------------- staging
@@ -139,11 +192,114 @@ class RunFolder:
         self.drop_marker(stage, unit)
         outputs = sorted(_staged_outputs(staging))
         files = describe_files(staging, outputs)
+        keys = self._upload(stage, unit, staging, files) if self.store is not None else {}
         self.commit(staging, outputs, previous.outputs if previous else [])
         marker = Marker(stage, unit, config_hash, code_version(), outputs, rows, round(seconds, 3), attempt, host,
-                        finished_at, info or {}, files)
+                        finished_at, info or {}, files, keys=keys)
         self.write_marker(marker)
+        if self.store is not None and previous is not None:  # the old attempt's objects, now named by nobody
+            self.store.remove(sorted(set(previous.keys.values()) - set(keys.values())))
         return marker
+
+    # ------------------------------------------------------------------------- object storage
+    def _upload(self, stage: str, unit: str, staging: Path, files: list) -> dict[str, str]:
+        """Upload the staged files under keys unique to this unit and attempt; logical path -> key.
+
+        Nothing is renamed: a reader finds these keys only through the marker written after them, so an
+        attempt that dies here (or whose upload fails) leaves objects no marker names.
+        """
+        assert self.store is not None
+        base = f"{ATTEMPTS}/{stage}/{unit}/{attempt_id()}"
+        keys = {}
+        for entry in files:
+            keys[entry.path] = f"{base}/{entry.path}"
+            self.store.put_file(staging / entry.path, keys[entry.path])
+        return keys
+
+    def _check_store(self) -> None:
+        assert self.store is not None
+        try:
+            self.store.check()
+        except StoreError as error:
+            raise RunFolderError(str(error)) from None
+
+    @staticmethod
+    def _marker_key(stage: str, unit: str) -> str:
+        return f"{STATE}/{stage}/{unit}.json"
+
+    def refresh(self, stages: list[str] | None = None) -> None:
+        """Bring the working copy of a remote run in step with the store's markers (nothing on local disk).
+
+        The markers are listed once (of `stages`, or all) and fetched in one batch; the files a new or
+        changed marker names are downloaded to their logical paths; a marker gone from the store goes here.
+        """
+        if self.store is None:
+            return
+        job = self.store.read_text(JOB_FILE)
+        if job is not None and job != _read(self.root / JOB_FILE):
+            atomic_write_text(self.root / JOB_FILE, job)
+        folders = [f"{STATE}/{stage}" for stage in stages] if stages is not None else [STATE]
+        remote: dict[tuple[str, str], Marker] = {}
+        for folder in folders:
+            for relative, text in self.store.marker_texts(folder).items():
+                parts = relative.split("/")
+                marker = parse_marker(text) if len(parts) == 3 else None
+                if marker is not None:
+                    remote[(marker.stage, marker.unit)] = marker
+        local = {(stage, unit): marker for stage in (stages if stages is not None else marker_files.marked_stages(self.root))
+                 for unit, marker in self.markers(stage).items()}
+        for key, marker in sorted(remote.items()):
+            self._pull(marker, local.get(key))
+        for stage, unit in sorted(set(local) - set(remote)):
+            marker_files.drop_marker(self.root, stage, unit)
+
+    def refresh_unit(self, stage: str, unit: str) -> None:
+        """Bring one unit's marker (and files) in step with the store (a worker before it runs the unit)."""
+        if self.store is None:
+            return
+        text = self.store.read_text(self._marker_key(stage, unit))
+        marker = parse_marker(text) if text is not None else None
+        if marker is None:
+            marker_files.drop_marker(self.root, stage, unit)
+        else:
+            self._pull(marker, self.marker(stage, unit))
+
+    def _pull(self, marker: Marker, current: Marker | None) -> None:
+        """Make the working copy hold exactly what `marker` names (a local commit of downloaded files)."""
+        assert self.store is not None
+        if current == marker and not marker_files.check_files(marker, self.root, recorded=False):
+            return
+        marker_files.drop_marker(self.root, marker.stage, marker.unit)
+        have = {f.path: f for f in current.files} if current is not None else {}
+        for entry in marker.files:
+            target = self.root / entry.path
+            if have.get(entry.path) == entry and target.is_file() and target.stat().st_size == entry.size:
+                continue
+            try:
+                self.store.get_file(marker.keys.get(entry.path, entry.path), target)
+            except FileNotFoundError:  # left missing: the unit shows as damaged and runs again
+                log.warning("%s: %s named by the marker of %s/%s is missing on the store",
+                            self.location, entry.path, marker.stage, marker.unit)
+                target.unlink(missing_ok=True)
+        named = {entry.path for entry in marker.files}
+        for output in marker.outputs:  # a Zarr store keeps no chunk of an earlier commit
+            folder = self.root / output
+            if folder.is_dir():
+                for member in [p for p in folder.rglob("*") if p.is_file()]:
+                    if member.relative_to(self.root).as_posix() not in named:
+                        member.unlink()
+        for relative in sorted(set(current.outputs if current else []) - set(marker.outputs)):
+            _remove(self.root / relative)
+        marker_files.write_marker(self.root, marker)
+
+    def upload_log(self, stage: str, unit: str) -> None:
+        """Copy a unit's log to the store (best effort: a log is not an output)."""
+        if self.store is None:
+            return
+        try:
+            self.store.put_file(self.log_path(stage, unit), f"logs/{stage}/{unit}.log")
+        except OSError as error:
+            log.warning("%s: log of %s/%s not uploaded (%s)", self.location, stage, unit, error)
 
     def commit(self, staging: Path, outputs: list[str], previous_outputs: list[str]) -> None:
         """Move the staged `outputs` (files or Zarr stores) into place, replacing earlier versions.
@@ -163,6 +319,13 @@ class RunFolder:
         path = self.root / "logs" / stage / f"{unit}.log"
         path.parent.mkdir(parents=True, exist_ok=True)
         return path
+
+
+def _read(path: Path) -> str | None:
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return None
 
 
 def _staged_outputs(staging: Path) -> list[str]:

@@ -27,7 +27,7 @@ class Observer:
 class JobReport:
     """The reports of the stages that ran."""
 
-    run: Path
+    run: Path | str  # the folder, or the object-store URL of a run kept there
     stages: list[StageReport] = field(default_factory=list)
 
     @property
@@ -55,7 +55,7 @@ def rerun(run_dir: str | Path, stage: str, force: bool = False, address: str | N
 def _run(job: Job, run: RunFolder, stages: list[str], force: bool, address: str | None,
          observer: Observer | None, executor: ExecutorName) -> JobReport:
     observer = observer or Observer()
-    report = JobReport(run.root)
+    report = JobReport(run.root if run.store is None else run.location)
     for name in stages:
         try:
             stage_report = run_stage(make_stage(name, job), run, force=force, address=address,

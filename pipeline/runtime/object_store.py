@@ -1,0 +1,172 @@
+"""Run folders on object storage (any fsspec URL: `s3://bucket/prefix`, `gs://...`, `memory://...`).
+
+A remote run folder is worked on through a *local working copy* (a cache folder per URL): units stage on
+local disk as they do for a local run; at commit their files are uploaded under keys unique to the unit
+and attempt (`_attempts/<stage>/<unit>/<attempt id>/<logical path>`), then the marker, last. The marker
+keeps the logical paths (`videos/<emb>/<video>.zarr/...`, `<dataset>/part-<unit>.parquet`) in `files` and
+maps each to its key in `keys`, so tables and file bytes are those of a local run and a reader trusts only
+keys a marker names: an attempt that died uploaded under keys nobody names. Readers pull: the markers
+are listed once (`_state/`) and fetched in one batch, and every file a new marker names is downloaded
+to its logical path in the working copy; nothing else of the bucket is listed. Stores have no rename,
+so nothing is renamed there.
+
+Credentials come only from the environment or the usual config files (fsspec/s3fs/botocore read them);
+no option holding one is ever taken from the command line or written anywhere by this module.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import re
+import socket
+import time
+from pathlib import Path
+from typing import Any
+
+import fsspec
+
+log = logging.getLogger(__name__)
+
+ATTEMPTS = "_attempts"
+# The remote URL a local working copy belongs to (the URL only: never a credential).
+REMOTE_FILE = ".remote-url"
+_URL = re.compile(r"^([a-z][a-z0-9+.-]+):/+(.*)$")
+# Variables a Ray worker needs to reach the same store as the driver (forwarded, never written down).
+STORAGE_ENVIRONMENT = ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_SESSION_TOKEN", "AWS_ENDPOINT_URL",
+                       "AWS_ENDPOINT_URL_S3", "AWS_DEFAULT_REGION", "AWS_REGION", "AWS_PROFILE",
+                       "AWS_SHARED_CREDENTIALS_FILE", "AWS_CONFIG_FILE", "GOOGLE_APPLICATION_CREDENTIALS",
+                       "MVPD_CACHE_DIR")
+
+
+class StoreError(OSError):
+    """An object store that cannot be used (no such bucket, refused credentials, unreachable endpoint)."""
+
+
+def remote_url(location: str | os.PathLike) -> str | None:
+    """The normalized URL when `location` names an object store, None for a local path (`file://` included).
+
+    A `pathlib.Path` collapses `s3://b/p` into `s3:/b/p`; both spellings are accepted.
+    """
+    match = _URL.match(str(location))
+    if match is None or match.group(1) in ("file", "local"):
+        return None
+    return f"{match.group(1)}://{match.group(2).rstrip('/')}"
+
+
+def local_path(location: str | os.PathLike) -> Path:
+    """A local path from a path or a `file://` URL."""
+    match = _URL.match(str(location))
+    return Path(f"/{match.group(2)}") if match and match.group(1) in ("file", "local") else Path(location)
+
+
+def cache_folder(url: str) -> Path:
+    """The local working copy of a remote run (`MVPD_CACHE_DIR`, default ~/.cache/mvpd/runs), one per URL."""
+    base = Path(os.environ.get("MVPD_CACHE_DIR") or Path.home() / ".cache" / "mvpd" / "runs")
+    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", url.split("://", 1)[1])[-60:]
+    return base / f"{name}-{hashlib.sha256(url.encode()).hexdigest()[:12]}"
+
+
+def working_copy_url(root: Path) -> str | None:
+    """The URL a local folder is the working copy of (None for an ordinary local run folder)."""
+    try:
+        return (Path(root) / REMOTE_FILE).read_text(encoding="utf-8").strip() or None
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+
+
+def attempt_id() -> str:
+    """Unique per attempt of a unit: host, process and time (two attempts never share a key)."""
+    return f"{socket.gethostname()}.{os.getpid()}.{time.time_ns()}"
+
+
+class RunStore:
+    """The object-store side of a remote run folder: an fsspec filesystem rooted at the run's prefix.
+
+    Every key is relative to the run (as in datatrove's DataFolder), so no caller joins URLs.
+    """
+
+    def __init__(self, url: str):
+        self.url = url
+        self.fs, self.prefix = fsspec.core.url_to_fs(url)
+        self.prefix = self.prefix.rstrip("/")
+
+    def key(self, relative: str) -> str:
+        return f"{self.prefix}/{relative}" if self.prefix else relative
+
+    def check(self) -> None:
+        """Fail with one line when the bucket is missing, the credentials are refused or the endpoint is down."""
+        bucket = self.prefix.split("/", 1)[0]
+        try:
+            if "memory" not in self.fs.protocol:  # the memory store of the tests has no buckets
+                self._probe().info(bucket)
+        except PermissionError as error:
+            raise StoreError(f"{self.url}: access refused ({_one_line(error)}); check the credentials in the "
+                             "environment (AWS_ACCESS_KEY_ID/AWS_SECRET_ACCESS_KEY) or ~/.aws") from None
+        except FileNotFoundError:
+            raise StoreError(f"{self.url}: bucket {bucket!r} does not exist; create it or fix the URL") from None
+        except (OSError, ValueError) as error:
+            raise StoreError(f"{self.url}: the object store cannot be reached ({_one_line(error)}); check the "
+                             "endpoint (AWS_ENDPOINT_URL) and the network") from None
+        except Exception as error:  # noqa: BLE001 - botocore raises its own types (EndpointConnectionError, ...)
+            raise StoreError(f"{self.url}: the object store cannot be used ({type(error).__name__}: "
+                             f"{_one_line(error)}); check the endpoint and the credentials") from None
+
+    def _probe(self) -> fsspec.AbstractFileSystem:
+        """A filesystem like ours that fails fast: one try, a short connect timeout (S3 only; else ours)."""
+        if "s3" not in self.fs.protocol:
+            return self.fs
+        options = {**self.fs.storage_options, "skip_instance_cache": True,
+                   "config_kwargs": {"retries": {"max_attempts": 1, "mode": "standard"}, "connect_timeout": 5}}
+        return type(self.fs)(**options)
+
+    def exists(self, relative: str) -> bool:
+        return self.fs.exists(self.key(relative))
+
+    def put_file(self, local: Path, relative: str) -> None:
+        self.fs.put_file(str(local), self.key(relative))
+
+    def put_text(self, relative: str, text: str) -> None:
+        """One PUT: on an object store a reader sees the old object or the new one whole."""
+        self.fs.pipe_file(self.key(relative), text.encode("utf-8"))
+
+    def get_file(self, relative: str, local: Path) -> None:
+        """Download to `local` through a temporary name, so a reader never sees half a file."""
+        local.parent.mkdir(parents=True, exist_ok=True)
+        temporary = local.with_name(f".{local.name}.part-{os.getpid()}")
+        self.fs.get_file(self.key(relative), str(temporary))
+        os.replace(temporary, local)
+
+    def read_text(self, relative: str) -> str | None:
+        try:
+            return self.fs.cat_file(self.key(relative)).decode("utf-8")
+        except FileNotFoundError:
+            return None
+
+    def remove(self, relatives: list[str]) -> None:
+        """Delete keys (best effort: a key left behind is named by no marker, so no reader sees it)."""
+        for relative in relatives:
+            try:
+                self.fs.rm_file(self.key(relative))
+            except FileNotFoundError:
+                pass
+            except OSError as error:
+                log.warning("%s: could not delete %s (%s); it is named by no marker", self.url, relative, error)
+
+    def marker_texts(self, folder: str) -> dict[str, str]:
+        """Relative path -> text of every `*.json` below `folder` (one listing, one batched fetch)."""
+        base = self.key(folder)
+        try:
+            keys = [k for k in self.fs.find(base) if k.endswith(".json")]
+        except FileNotFoundError:
+            return {}
+        if not keys:
+            return {}
+        fetched: dict[str, Any] = self.fs.cat(keys, on_error="omit")
+        start = len(self.key("")) if self.prefix else 0
+        return {k[start:].lstrip("/"): v.decode("utf-8") for k, v in fetched.items() if isinstance(v, bytes)}
+
+
+def _one_line(error: BaseException) -> str:
+    return " ".join(str(error).split())[:200] or type(error).__name__
