@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import fsspec
+from fsspec.implementations.memory import MemoryFileSystem
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +100,7 @@ class RunStore:
         """Fail with one line when the bucket is missing, the credentials are refused or the endpoint is down."""
         bucket = self.prefix.split("/", 1)[0]
         try:
-            if "memory" not in self.fs.protocol:  # the memory store of the tests has no buckets
+            if not isinstance(self.fs, MemoryFileSystem):  # the memory store of the tests has no buckets
                 self._probe().info(bucket)
         except PermissionError as error:
             raise StoreError(f"{self.url}: access refused ({_one_line(error)}); check the credentials in the "
