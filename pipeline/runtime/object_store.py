@@ -128,6 +128,11 @@ class RunStore:
     def put_file(self, local: Path, relative: str) -> None:
         self.fs.put_file(str(local), self.key(relative))
 
+    def put_files(self, uploads: list[tuple[Path, str]]) -> None:
+        """Upload many files at once (concurrent requests on an async store such as s3fs); any failure raises."""
+        if uploads:
+            self.fs.put([str(local) for local, _ in uploads], [self.key(relative) for _, relative in uploads])
+
     def put_text(self, relative: str, text: str) -> None:
         """One PUT: on an object store a reader sees the old object or the new one whole."""
         self.fs.pipe_file(self.key(relative), text.encode("utf-8"))

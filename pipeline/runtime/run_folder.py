@@ -189,7 +189,10 @@ class RunFolder:
         were just written and are read back from the page cache.
         """
         previous = self.marker(stage, unit)
-        self.drop_marker(stage, unit)
+        if previous is not None or self.store is None:
+            self.drop_marker(stage, unit)
+        else:  # nothing to drop on the store (the working copy is in step with it for this unit)
+            marker_files.drop_marker(self.root, stage, unit)
         outputs = sorted(_staged_outputs(staging))
         files = describe_files(staging, outputs)
         keys = self._upload(stage, unit, staging, files) if self.store is not None else {}
@@ -210,10 +213,8 @@ class RunFolder:
         """
         assert self.store is not None
         base = f"{ATTEMPTS}/{stage}/{unit}/{attempt_id()}"
-        keys = {}
-        for entry in files:
-            keys[entry.path] = f"{base}/{entry.path}"
-            self.store.put_file(staging / entry.path, keys[entry.path])
+        keys = {entry.path: f"{base}/{entry.path}" for entry in files}
+        self.store.put_files([(staging / path, key) for path, key in keys.items()])
         return keys
 
     def _check_store(self) -> None:

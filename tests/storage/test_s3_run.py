@@ -122,22 +122,23 @@ def test_no_credential_is_written_to_the_bucket_or_the_working_copy(s3, s3_run):
 def test_failed_upload_leaves_nothing_visible_and_a_rerun_completes(s3, s3_run, monkeypatch, tmp_path_factory):
     before = trusted_bytes_on_store(s3, s3_run)
     calls = {"n": 0}
-    real_put = object_store.RunStore.put_file
+    real_put = object_store.RunStore.put_files
 
-    def put_failing_on_the_fifth(self, local, relative):
+    def failing_mid_write_of_the_fifth_unit(self, uploads):
         calls["n"] += 1
-        if calls["n"] == 5:  # a render unit's second Zarr chunk: mid-write of one unit
-            raise OSError("upload refused: injected failure of the 5th PUT")
-        real_put(self, local, relative)
+        if calls["n"] == 5:  # half of one render unit's files are uploaded, then the connection fails
+            real_put(self, uploads[:len(uploads) // 2])
+            raise OSError("upload refused: injected failure during the 5th upload batch")
+        real_put(self, uploads)
 
-    monkeypatch.setattr(object_store.RunStore, "put_file", put_failing_on_the_fifth)
+    monkeypatch.setattr(object_store.RunStore, "put_files", failing_mid_write_of_the_fifth_unit)
     result = invoke("rerun", s3_run, "--stage", "render", "--all", "--executor", "local")
-    monkeypatch.setattr(object_store.RunStore, "put_file", real_put)
+    monkeypatch.setattr(object_store.RunStore, "put_files", real_put)
     assert result.exit_code == 1 and "11 done, 1 failed" in result.output, result.output
     # The failed unit has no marker on the bucket, though its first four files were uploaded.
     assert len([k for k in store_markers(s3, s3_run) if k.startswith("render/")]) == 11
     status = invoke("status", s3_run)
-    assert "injected failure of the 5th PUT" in status.output or "OSError" in status.output, status.output
+    assert "injected failure during the 5th upload batch" in status.output or "OSError" in status.output, status.output
     # A fresh reader sees 11 videos: the failed attempt's uploaded keys are named by no marker.
     monkeypatch.setenv("MVPD_CACHE_DIR", str(tmp_path_factory.mktemp("reader")))
     query = invoke("query", s3_run, "select count(*) as n from videos", "--format", "json")

@@ -1,0 +1,153 @@
+"""Overhead of a run folder on object storage (not a test): the tiny demo job on local disk vs a local S3 API.
+
+The same job (3 procedural scenes, 2 embodiments, 64x48 px, 10-30 frames per video) is submitted as a
+whole command (`mvpd submit --executor local`, in-process, so both sides run the same units the same
+way) into a fresh local folder and into a fresh prefix of a bucket on moto's S3 server (started here as
+its own process on 127.0.0.1, so its CPU is not ours to count). Runs alternate local / S3, `--repeats`
+each; the figure is wall seconds per rendered frame, median and spread, and the ratio S3 / local (target
+<= 1.10). The machine is shared: the load average is recorded before and after, and ratios hold where
+seconds do not.
+
+    .venv/bin/python benchmarks/bench_storage.py [--repeats 3]
+
+Writes benchmarks/results/storage.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "benchmarks" / "results" / "storage.json"
+PYTHON = sys.executable
+CLI = ["-c", "from pipeline.cli.main import app; app()"]
+BUCKET = "mvpd-bench"
+TINY_DEMO_JOB = """
+name: demo
+seed: 0
+scenes:
+  procedural: {count: 3, seed: 0, detail: 0.05}
+embodiments:
+  - name: ambient
+    sensor: {width: 64, height: 48, hfov: 69.0}
+    placements: [1.0, 0.1]
+    body: {radius: 0.15, height: 1.2}
+    illumination: {kind: ambient}
+  - name: spot20w
+    sensor: {width: 64, height: 48, hfov: 69.0}
+    placements: [1.0, 0.1]
+    body: {radius: 0.15, height: 1.2}
+    illumination: {kind: spot, power: 20.0, cone: 180.0, blend: 1.0}
+plan: {trajectories_per_scene: 1, min_frames: 10, max_frames: 30}
+split:
+  scenes: {mode: fractions, fractions: {train: 0.34, val: 0.33, test: 0.33}}
+  zero_shot: {encoder: tfidf, clusters: 10, unseen_fraction: 0.2}
+"""
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def start_s3(port: int) -> subprocess.Popen:
+    """moto's S3 server as its own process on the loopback address; returns once it answers."""
+    server = subprocess.Popen([PYTHON, "-m", "moto.server", "-H", "127.0.0.1", "-p", str(port)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return server
+        except OSError:
+            time.sleep(0.3)
+    server.kill()
+    raise RuntimeError("moto's S3 server did not start within 60 s")
+
+
+def submit(job: Path, run_dir: str, env: dict[str, str]) -> float:
+    started = time.perf_counter()
+    done = subprocess.run([PYTHON, *CLI, "submit", str(job), "--run-dir", run_dir, "--executor", "local"],
+                          env=env, capture_output=True, text=True)
+    seconds = time.perf_counter() - started
+    if done.returncode != 0:
+        raise RuntimeError(f"submit {run_dir} exited {done.returncode}: {done.stdout[-800:]} {done.stderr[-800:]}")
+    return seconds
+
+
+def frame_count(run_dir: str, env: dict[str, str]) -> int:
+    done = subprocess.run([PYTHON, *CLI, "query", run_dir, "select count(*) as n from frame_stats", "--format", "json"],
+                          env=env, capture_output=True, text=True, check=True)
+    return int(json.loads(done.stdout)[0]["n"])
+
+
+def summary(values: list[float]) -> dict:
+    return {"median": round(statistics.median(values), 5), "min": round(min(values), 5), "max": round(max(values), 5),
+            "runs": [round(v, 5) for v in values]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    port = free_port()
+    server = start_s3(port)
+    work = Path(tempfile.mkdtemp(prefix="bench-storage-"))
+    env = {**os.environ, "PYTHONPATH": str(REPO), "AWS_ACCESS_KEY_ID": "bench", "AWS_SECRET_ACCESS_KEY": "bench",
+           "AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}", "AWS_DEFAULT_REGION": "us-east-1",
+           "MVPD_CACHE_DIR": str(work / "cache"), "RAY_USAGE_STATS_ENABLED": "0"}
+    env.pop("AWS_PROFILE", None)
+    env.pop("AWS_SESSION_TOKEN", None)
+    try:
+        import s3fs
+
+        os.environ.update({k: env[k] for k in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_ENDPOINT_URL",
+                                               "AWS_DEFAULT_REGION")})
+        s3fs.S3FileSystem().mkdir(BUCKET)
+        job = work / "demo.yaml"
+        job.write_text(TINY_DEMO_JOB, encoding="utf-8")
+        load_before = os.getloadavg()
+        seconds: dict[str, list[float]] = {"local": [], "s3": []}
+        frames = 0
+        for repeat in range(args.repeats):
+            for side in ("local", "s3"):  # interleaved: a load change hits both sides alike
+                run_dir = str(work / f"local-{repeat}") if side == "local" else f"s3://{BUCKET}/run-{repeat}"
+                seconds[side].append(submit(job, run_dir, env))
+                frames = frames or frame_count(run_dir, env)
+                print(f"{side} run {repeat + 1}: {seconds[side][-1]:.2f} s", flush=True)
+        load_after = os.getloadavg()
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+    per_frame = {side: [s / frames for s in values] for side, values in seconds.items()}
+    ratios = [s3 / local for s3, local in zip(seconds["s3"], seconds["local"])]
+    result = {
+        "job": "tiny demo: 3 procedural scenes x 2 embodiments x 2 heights, 64x48 px, executor local",
+        "frames": frames,
+        "seconds_per_frame": {side: summary(values) for side, values in per_frame.items()},
+        "ratio_s3_to_local": summary(ratios),
+        "ratio_of_medians": round(statistics.median(seconds["s3"]) / statistics.median(seconds["local"]), 3),
+        "target_ratio": 1.10,
+        "load_average_before": [round(x, 2) for x in load_before],
+        "load_average_after": [round(x, 2) for x in load_after],
+        "cpus": os.cpu_count(),
+        "note": "whole `mvpd submit` commands (Python start, planning, render, commit, status); the S3 side "
+                "uploads every file, each marker last, to moto's server on 127.0.0.1 (its own process)",
+    }
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+    print(json.dumps(result, indent=1))
+
+
+if __name__ == "__main__":
+    main()
