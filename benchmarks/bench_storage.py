@@ -27,31 +27,14 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+# The demo's shape (3 scenes, 2 embodiments, 2 heights) at 64x48 px, 10-30 frames: the tests' demo-shaped run.
+from tests.demo_run import DEMO_SHAPED_JOB as TINY_DEMO_JOB  # noqa: E402
 RESULTS = REPO / "benchmarks" / "results" / "storage.json"
 PYTHON = sys.executable
 CLI = ["-c", "from pipeline.cli.main import app; app()"]
 BUCKET = "mvpd-bench"
-TINY_DEMO_JOB = """
-name: demo
-seed: 0
-scenes:
-  procedural: {count: 3, seed: 0, detail: 0.05}
-embodiments:
-  - name: ambient
-    sensor: {width: 64, height: 48, hfov: 69.0}
-    placements: [1.0, 0.1]
-    body: {radius: 0.15, height: 1.2}
-    illumination: {kind: ambient}
-  - name: spot20w
-    sensor: {width: 64, height: 48, hfov: 69.0}
-    placements: [1.0, 0.1]
-    body: {radius: 0.15, height: 1.2}
-    illumination: {kind: spot, power: 20.0, cone: 180.0, blend: 1.0}
-plan: {trajectories_per_scene: 1, min_frames: 10, max_frames: 30}
-split:
-  scenes: {mode: fractions, fractions: {train: 0.34, val: 0.33, test: 0.33}}
-  zero_shot: {encoder: tfidf, clusters: 10, unseen_fraction: 0.2}
-"""
 
 
 def free_port() -> int:

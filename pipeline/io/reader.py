@@ -191,7 +191,8 @@ def clip_index(run: Any, clip_len: int, stride: int | None = None,
     stride = stride or clip_len
     from pipeline.io.tables import read_dataset
 
-    table = read_dataset(_run_root(run), "videos")
+    run = _run_root(run)
+    table = read_dataset(run, "videos")
     frames = {(e, n): f for e, n, f in zip(table.column("embodiment").to_pylist(),
                                              table.column("video_name").to_pylist(), table.column("frames").to_pylist())}
     keys = sorted(frames) if videos is None else list(videos)
@@ -205,6 +206,7 @@ def iter_clips(run: Any, clip_len: int, stride: int | None = None, videos: Seque
                arrays: Sequence[str] = PIXEL_ARRAYS, split: str | None = None) -> Iterator[dict[str, Any]]:
     """Yield clips (dicts of numpy arrays with a leading time axis, poses and keys) of a run's videos
     (with `split`: of that split's accepted videos only)."""
+    run = _run_root(run)  # an object-store URL is brought up to date once, not once per video
     opened: dict[tuple[str, str], LoadedVideo] = {}
     for embodiment, name, start in clip_index(run, clip_len, stride, videos, split):
         if (embodiment, name) not in opened:

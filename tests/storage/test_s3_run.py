@@ -101,7 +101,12 @@ def test_status_query_and_load_video_read_the_bucket(s3, s3_run, tmp_path_factor
     query = invoke("query", s3_run, "select count(*) as n from videos", "--format", "json")
     assert query.exit_code == 0, query.output
     assert json.loads(query.output)[0]["n"] == 12
-    from pipeline.io.reader import load_video
+    stats = invoke("stats", s3_run)
+    assert stats.exit_code == 0 and "ambient" in stats.output, stats.output
+    from pipeline.io.reader import iter_clips, load_video
+
+    clip = next(iter_clips(s3_run, 4))
+    assert clip["rgb"].shape == (4, 48, 64, 3)
 
     ours = load_video(s3_run, DEMO_VIDEO, "ambient")
     theirs = load_video(demo_shaped_run(tmp_path_factory), DEMO_VIDEO, "ambient")
