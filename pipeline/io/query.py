@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import duckdb
@@ -45,10 +46,13 @@ LOCKDOWN = (
 )
 
 
-def connect(run: RunFolder) -> duckdb.DuckDBPyConnection:
-    """An in-memory, locked-down DuckDB connection with one view per Parquet dataset of the run (`frames` joined)."""
+def connect(run: RunFolder, only: Sequence[str] | None = None) -> duckdb.DuckDBPyConnection:
+    """An in-memory, locked-down DuckDB connection with one view per Parquet dataset of the run (`frames` joined).
+
+    `only` registers just those datasets (what a stage reads), sparing the marker reads of the others.
+    """
     connection = duckdb.connect(":memory:")
-    datasets = run.datasets()
+    datasets = [d for d in run.datasets() if only is None or d in only]
     _report_damage(run, datasets)
     for dataset in datasets:
         connection.register(_hidden(dataset), _arrow_dataset(run, dataset))
