@@ -1,5 +1,5 @@
-"""What confining `mvpd query` costs: the locked-down connection (each dataset registered from its list of
-part files as a pyarrow dataset, DuckDB's file access off) against DuckDB's own `read_parquet` over a glob
+"""What confining `mvpd query` costs: the locked-down connection (each dataset a scan of its list of
+marker-trusted part files, glob characters escaped, DuckDB's file access off) against DuckDB's own `read_parquet` over a glob
 of the same files (the unconfined peer it replaced).
 
 A `segments`-shaped dataset of 200 part files (2 M rows, one per mask) is written to a temporary run
@@ -22,7 +22,8 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline.io.query import connect
-from pipeline.io.tables import spec, write_part
+from pipeline.io.tables import spec
+from pipeline.runtime.executor import commit_tables
 from pipeline.runtime.run_folder import RunFolder, atomic_write_text
 
 RESULTS = Path(__file__).resolve().parent / "results" / "query.json"
@@ -37,6 +38,7 @@ QUERIES = {
 def write_run(root: Path) -> RunFolder:
     """A run folder holding only a `segments` dataset of PARTS parts (job.yaml just marks it as a run)."""
     atomic_write_text(root / "job.yaml", "job: {}\n")
+    run = RunFolder(root)
     rng = np.random.default_rng(0)
     schema = spec("segments").schema
     for part in range(PARTS):
@@ -47,8 +49,8 @@ def write_run(root: Path) -> RunFolder:
             "area": rng.integers(10, 5000, n), "x0": np.zeros(n, np.int32), "y0": np.zeros(n, np.int32),
             "x1": np.full(n, 63, np.int32), "y1": np.full(n, 47, np.int32),
         }
-        write_part(root, "segments", f"v-{part:05d}", pa.Table.from_pydict(columns, schema=schema))
-    return RunFolder(root)
+        commit_tables(run, "render", f"v-{part:05d}", {"segments": pa.Table.from_pydict(columns, schema=schema)})
+    return run
 
 
 def unconfined(run: RunFolder) -> duckdb.DuckDBPyConnection:

@@ -36,11 +36,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline.config import (Embodiment, Job, ProceduralSource, SceneSources, SceneSplitConfig,  # noqa: E402
                              SplitConfig)
-from pipeline.io.tables import spec, write_part  # noqa: E402
+from pipeline.io.tables import spec  # noqa: E402
 from pipeline.runtime.executor import run_stage  # noqa: E402
 from pipeline.runtime.run_folder import RunFolder  # noqa: E402
 from pipeline.split.stage import SplitAssigner, VideoScreener  # noqa: E402
-from pipeline.split.synthetic import mark_done  # noqa: E402
+from pipeline.split.synthetic import mark_done, write_dataset  # noqa: E402
 
 TARGET_SECONDS = 60.0
 TARGET_DRIVER_GIB = 2.0
@@ -138,7 +138,7 @@ def _write_table(run: RunFolder, dataset: str, part: str, columns: dict, rows: i
             arrays.append(pa.nulls(rows, field.type))
         else:
             arrays.append(pa.array(np.zeros(rows), pa.float64()).cast(field.type) if not field.nullable else pa.nulls(rows, field.type))
-    write_part(run.root, dataset, part, pa.Table.from_arrays(arrays, schema=schema))
+    write_dataset(run, dataset, pa.Table.from_arrays(arrays, schema=schema), part)
 
 
 class PeakRss:

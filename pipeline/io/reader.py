@@ -12,6 +12,7 @@ importable (it wraps the same clip index).
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Sequence
@@ -28,6 +29,10 @@ PIXEL_ARRAYS = ("rgb", "depth", "panoptic")
 
 class VideoNotFoundError(LookupError):
     """A video name (or embodiment) that the run does not hold; the message lists what it does hold."""
+
+
+class VideoDamagedError(VideoNotFoundError):
+    """A stored video whose files are not as its unit's marker says; `mvpd rerun` repairs it."""
 
 
 def _split_videos(run: Any, split: str | None) -> set[tuple[str, str]] | None:
@@ -115,11 +120,11 @@ def list_videos(run: Any) -> list[tuple[str, str]]:
 
 
 def _resolve_embodiment(run: Any, name: str, embodiment: str | None) -> str:
-    """The embodiment of the stored video `name`, found by listing `videos/` (names are compared, never
-    joined into a path, so `../x` or an absolute name finds nothing)."""
+    """The embodiment of the stored video `name`. Only a plain name (letters, digits, `_`, `-`, inner dots)
+    is looked up, so `../x`, `e/v` or an absolute name finds nothing and nothing outside the run is touched."""
     root = _run_root(run)
     hint = f"`mvpd query {root} \"select embodiment, video_name from videos\"` lists them"
-    found = _video_embodiments(root / "videos", f"{name}.zarr")
+    found = _video_embodiments(root / "videos", name, embodiment)
     if embodiment is not None:
         if embodiment not in found:
             raise VideoNotFoundError(f"{root}: no video {name!r} of embodiment {embodiment!r}; {hint}")
@@ -131,12 +136,32 @@ def _resolve_embodiment(run: Any, name: str, embodiment: str | None) -> str:
     return found[0]
 
 
-def _video_embodiments(videos: Path, store: str) -> list[str]:
-    """Sorted names of the embodiment folders under `videos` that hold a store folder named exactly `store`."""
-    if not videos.is_dir():
+PLAIN_NAME = re.compile(r"^[A-Za-z0-9_\-][A-Za-z0-9_.\-]*$")
+
+
+def _video_embodiments(videos: Path, name: str, embodiment: str | None) -> list[str]:
+    """Embodiments (all, or just `embodiment`) holding a store for video `name`: one stat per embodiment, no
+    listing of the videos (a run holds 18,000); names that are not plain never reach the file system."""
+    if not (PLAIN_NAME.match(name) and (embodiment is None or PLAIN_NAME.match(embodiment))) or not videos.is_dir():
         return []
-    return sorted(folder.name for folder in videos.iterdir()
-                  if folder.is_dir() and any(entry.name == store and entry.is_dir() for entry in folder.iterdir()))
+    candidates = [embodiment] if embodiment is not None else sorted(f.name for f in videos.iterdir() if f.is_dir())
+    return [e for e in candidates if (videos / e / f"{name}.zarr").is_dir()]
+
+
+def _check_committed(root: Path, embodiment: str, name: str) -> None:
+    """Refuse a video whose committing unit's files are damaged (a lost shard would read as zeros)."""
+    from pipeline.runtime.markers import check_files, marker_path, read_marker, stages_writing
+
+    store = f"videos/{embodiment}/{name}.zarr"
+    for stage in stages_writing(root, "videos"):
+        for unit in (f"{embodiment}.{name}", name):  # render's unit ids, import's
+            marker = read_marker(marker_path(root, stage, unit))
+            if marker is not None and store in marker.outputs:
+                damage = check_files(marker, root)
+                if damage:
+                    raise VideoDamagedError(f"{root}: video {embodiment}/{name} is damaged ({damage[0].line()}); "
+                                            f"`mvpd status {root}` lists damage, `mvpd rerun {root} --stage {stage}` repairs it")
+                return
 
 
 def _object_names(root: Path, scene_id: str) -> tuple[dict[int, int], dict[int, str]]:
@@ -165,6 +190,7 @@ def load_video(run: Any, name: str, embodiment: str | None = None, split: str | 
     if accepted is not None and (embodiment, name) not in accepted:
         raise VideoNotFoundError(f"{root}: video {embodiment}/{name} is not an accepted video of split {split!r} "
                                  f"(`mvpd query {root} \"select * from splits where video_name = '{name}'\"` says why)")
+    _check_committed(root, embodiment, name)
     video = open_video(root / "videos" / embodiment / f"{name}.zarr")
     attributes = video.attrs
     categories = {int(k): int(v) for k, v in attributes.get("object_categories", {}).items()}

@@ -25,7 +25,9 @@ def _root(run: Any) -> Path:
 
 def has_split(run: Any) -> bool:
     """True when the split stage committed its `splits` table in this run."""
-    return any((_root(run) / "splits").glob("part-*.parquet"))
+    from pipeline.io.tables import dataset_parts
+
+    return bool(dataset_parts(_root(run), "splits"))
 
 
 def check_split_name(split: str) -> str:

@@ -22,18 +22,19 @@ from __future__ import annotations
 from collections import defaultdict
 from typing import TYPE_CHECKING, Any
 
-import duckdb
 import pyarrow as pa
 import pyarrow.compute as pc
 
 from pipeline.config import SPLIT_NAMES, ConfigError, Job, SplitConfig, config_hash
-from pipeline.io.tables import to_table
+from pipeline.io.tables import dataset_parts, to_table
 from pipeline.runtime.executor import StageOrderError
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 from pipeline.split.scenes import assign_scenes, train_and_pool
 from pipeline.split.zero_shot import Instance, Video, ZeroShotError, ZeroShotSplitter
 
 if TYPE_CHECKING:
+    import duckdb
+
     from pipeline.runtime.run_folder import Marker, RunFolder
 
 ZERO_SHOT_UNIT = "zero-shot"
@@ -58,11 +59,14 @@ def _fingerprint(markers: dict[str, "Marker"], prefix: str = "") -> str:
     return config_hash(sorted((unit, m.config_hash, m.code_version) for unit, m in markers.items() if unit.startswith(prefix)))
 
 
-def _parquet(run: "RunFolder", dataset: str) -> str:
-    folder = run.root / dataset
-    if not any(folder.glob("part-*.parquet")):
-        raise SplitInputError(f"{folder}: no rows; run the stage that writes {dataset} first (mvpd status RUN)")
-    return str(folder / "part-*.parquet")
+def _connect(run: "RunFolder", *datasets: str) -> "duckdb.DuckDBPyConnection":
+    """DuckDB over the marker-trusted parts of `datasets` (the same confined connection as `mvpd query`)."""
+    from pipeline.io.query import connect
+
+    for dataset in datasets:
+        if not dataset_parts(run.root, dataset):
+            raise SplitInputError(f"{run.root / dataset}: no rows; run the stage that writes {dataset} first (mvpd status RUN)")
+    return connect(run, only=datasets)
 
 
 class VideoScreener(Stage):
@@ -117,11 +121,10 @@ class VideoScreener(Stage):
             select v.embodiment, v.video_name, v.scene_id, count(f.frame)::int as frames,
                    round(max(f.void_fraction) * v.width * v.height)::bigint as max_void_pixels,
                    (v.width * v.height)::bigint as pixels
-            from read_parquet('{_parquet(run, "videos")}') v
-            join read_parquet('{_parquet(run, "frame_stats")}') f using (embodiment, video_name)
+            from videos v join frame_stats f using (embodiment, video_name)
             where v.embodiment = $embodiment
             group by v.embodiment, v.video_name, v.scene_id, v.width, v.height order by v.video_name"""
-        table = duckdb.connect().execute(query, {"embodiment": embodiment}).to_arrow_table()
+        table = _connect(run, "videos", "frame_stats").execute(query, {"embodiment": embodiment}).to_arrow_table()
         empty = [void > threshold * pixels for void, pixels in
                  zip(table.column("max_void_pixels").to_pylist(), table.column("pixels").to_pylist())]
         table = table.append_column("empty", pa.array(empty, pa.bool_()))
@@ -169,10 +172,9 @@ def _videos_of_instances(run: "RunFolder", categories: list[int]) -> dict[tuple[
     """(scene, object) -> the videos in which it covers a pixel of some frame (from `segments`)."""
     query = f"""
         select distinct v.scene_id, s.object_id, s.embodiment, s.video_name
-        from read_parquet('{_parquet(run, "segments")}') s
-        join read_parquet('{_parquet(run, "videos")}') v using (embodiment, video_name)
+        from segments s join videos v using (embodiment, video_name)
         where s.category in ({", ".join(str(int(c)) for c in categories)})"""
-    table = duckdb.connect().execute(query).to_arrow_table()
+    table = _connect(run, "segments", "videos").execute(query).to_arrow_table()
     videos_of: dict[tuple[str, int], set[Video]] = defaultdict(set)
     columns = [table.column(c).to_pylist() for c in ("scene_id", "object_id", "embodiment", "video_name")]
     for scene, object_id, embodiment, video in zip(*columns):

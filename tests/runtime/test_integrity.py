@@ -18,6 +18,7 @@ import ray.cloudpickle
 from typer.testing import CliRunner
 
 from pipeline.cli.main import app
+from pipeline.io.reader import VideoDamagedError, load_video
 from pipeline.runtime.executor import plan_stage, run_stage
 from pipeline.runtime.markers import file_checksum
 from pipeline.runtime.run_folder import RunFolder
@@ -213,6 +214,8 @@ def test_deleted_zarr_shard_is_named_by_status_and_rerun_restores_the_video(job_
     shard.unlink()
     assert len(RunFolder(run).read("videos")) == 1  # readers leave the damaged video out ...
     assert [d.path for d in damaged_parts(run, "videos")] == [shard.relative_to(run).as_posix()]  # ... and say why
+    with pytest.raises(VideoDamagedError, match="is missing"):  # no silent zeros where the shard was
+        load_video(run, video, "tiny")
     result = invoke("status", run)
     assert result.exit_code == 1
     assert f"render/tiny.{video}" in result.output and "damaged" in result.output and "is missing" in result.output
@@ -220,6 +223,7 @@ def test_deleted_zarr_shard_is_named_by_status_and_rerun_restores_the_video(job_
     assert result.exit_code == 0 and "1 done, 0 failed, 1 up to date" in result.output, result.output
     assert clean_bytes(digest(run, PIXELS_AND_PLANS)) == clean_bytes(clean)
     assert invoke("status", run).exit_code == 0
+    assert load_video(run, video, "tiny").frames > 0
 
 
 def test_truncated_trajectories_part_is_named_by_status_and_rerun_restores_it(job_run):
