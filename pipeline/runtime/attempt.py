@@ -13,7 +13,6 @@ import time
 import traceback
 from pathlib import Path
 
-from pipeline.runtime.markers import STATE
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 from pipeline.runtime.status import UnitOutcome
@@ -30,8 +29,7 @@ def execute_unit(stage: Stage, run_root: str, unit: Unit, attempt: int) -> UnitO
     if run.store is not None and run_root == run.location:
         # A worker handed the store's URL (another process, maybe another node): bring its working copy in
         # step with what the unit reads (the other stages) and with the unit's own last commit.
-        run.refresh([s for s in marked_stages_on(run) if s != stage.name])
-        run.refresh_unit(stage.name, unit.id)
+        run.refresh_for_unit(stage.name, unit.id)
     retry = ray_retry_number()
     attempt += retry
     log_file = run.log_path(stage.name, unit.id)
@@ -58,16 +56,6 @@ def execute_unit(stage: Stage, run_root: str, unit: Unit, attempt: int) -> UnitO
         logger.removeHandler(handler)
         handler.close()
         run.upload_log(stage.name, unit.id)
-
-
-def marked_stages_on(run: RunFolder) -> list[str]:
-    """The stages with markers on the run's store (one listing of `_state/`, not of any data)."""
-    assert run.store is not None
-    try:
-        return sorted(name.rsplit("/", 1)[-1] for name in run.store.fs.ls(run.store.key(STATE), detail=False)
-                      if not name.endswith(".json"))
-    except FileNotFoundError:
-        return []
 
 
 def ray_retry_number() -> int:

@@ -53,6 +53,10 @@ JOB_FILE = "job.yaml"
 STAGING = "_staging"
 
 log = logging.getLogger(__name__)
+# On object storage: where the driver notes the start of each stage (a token workers compare), and the
+# token up to which this process has pulled the other stages, per (URL, working copy).
+STAGE_START = f"{STATE}/stage-start.txt"
+_PULLED_FOR: dict[tuple[str, str], str] = {}
 
 
 class RunFolderError(ValueError):
@@ -253,6 +257,34 @@ class RunFolder:
             self._pull(marker, local.get(key))
         for stage, unit in sorted(set(local) - set(remote)):
             marker_files.drop_marker(self.root, stage, unit)
+
+    def begin_stage(self, stage: str) -> None:
+        """Tell workers (through the store) that the driver starts `stage`: each worker process then pulls
+        the other stages once for this start instead of before every unit (they do not change meanwhile)."""
+        if self.store is not None:
+            self.store.put_text(STAGE_START, f"{stage}.{time.time_ns()}")
+
+    def refresh_for_unit(self, stage: str, unit: str) -> None:
+        """A worker's pull before a unit: the other stages once per stage start (per process), and the
+        unit's own marker every time (one GET each; no listing but once per stage start)."""
+        if self.store is None:
+            return
+        started = self.store.read_text(STAGE_START)
+        memo = (self.store.url, str(self.root))
+        if started is None or _PULLED_FOR.get(memo) != started:
+            self.refresh([s for s in self._stages_on_store() if s != stage])
+            if started is not None:
+                _PULLED_FOR[memo] = started
+        self.refresh_unit(stage, unit)
+
+    def _stages_on_store(self) -> list[str]:
+        """The stages with a marker folder on the store (one listing of `_state/`)."""
+        assert self.store is not None
+        try:
+            entries = self.store.fs.ls(self.store.key(STATE), detail=True)
+        except FileNotFoundError:
+            return []
+        return sorted(e["name"].rstrip("/").rsplit("/", 1)[-1] for e in entries if e.get("type") == "directory")
 
     def refresh_unit(self, stage: str, unit: str) -> None:
         """Bring one unit's marker (and files) in step with the store (a worker before it runs the unit)."""

@@ -129,3 +129,26 @@ def test_a_failed_upload_fails_the_unit_and_marks_nothing_done(tmp_path):
     assert marker is not None and sorted(marker.keys) == ["extra/notes.txt", "status/part-u1.parquet"]
     assert store.exists(f"{prefix}/_state/fixture/u1.json")
     assert read_dataset(run.root, "status").column("unit").to_pylist() == ["u1"]
+
+
+def test_a_worker_lists_the_other_stages_once_per_stage_start(url, monkeypatch):
+    run = RunFolder.prepare(url)
+    commit_tables(run, "upstream", "u1", outcome_rows("u1"))
+    listings = []
+    real_ls = MemoryFileSystem.ls
+
+    def counting_ls(self, path, detail=True, **kwargs):
+        listings.append(path)
+        return real_ls(self, path, detail=detail, **kwargs)
+
+    monkeypatch.setattr(MemoryFileSystem, "ls", counting_ls)
+    worker = RunFolder(url)  # a worker handed the URL
+    run.begin_stage("fixture")
+    worker.refresh_for_unit("fixture", "a")
+    first = len(listings)
+    worker.refresh_for_unit("fixture", "b")
+    assert first > 0 and len(listings) == first  # the second unit lists nothing
+    assert worker.marker("upstream", "u1") is not None
+    run.begin_stage("fixture")  # the next stage run: upstream may have changed, pull again
+    worker.refresh_for_unit("fixture", "c")
+    assert len(listings) > first
