@@ -60,6 +60,7 @@ class Marker:
     info: dict[str, Any] = field(default_factory=dict)
     files: list[OutputFile] = field(default_factory=list)
     version: int = MARKER_VERSION
+    node: str = ""  # the Ray node id of the worker that committed ("" inline): `host` is one name per machine
 
 
 @dataclass(frozen=True)

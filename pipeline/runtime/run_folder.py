@@ -128,7 +128,7 @@ class RunFolder:
 
     def commit_unit(self, stage: str, unit: str, staging: Path, config_hash: str, rows: dict[str, int],
                     seconds: float, attempt: int, finished_at: float, host: str,
-                    info: dict[str, Any] | None = None) -> Marker:
+                    info: dict[str, Any] | None = None, node: str = "") -> Marker:
         """The commit protocol of one unit attempt (schemas/README.md): outputs into place, marker last.
 
         The old marker goes first: a process that dies during the commit leaves a unit that is simply
@@ -141,7 +141,7 @@ class RunFolder:
         files = describe_files(staging, outputs)
         self.commit(staging, outputs, previous.outputs if previous else [])
         marker = Marker(stage, unit, config_hash, code_version(), outputs, rows, round(seconds, 3), attempt, host,
-                        finished_at, info or {}, files)
+                        finished_at, info or {}, files, node=node)
         self.write_marker(marker)
         return marker
 
