@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import sys
 import tempfile
 
@@ -37,6 +38,7 @@ def main() -> None:
                 print("removed", flush=True)
     finally:
         cluster.shutdown()
+        shutil.rmtree(temp_dir, ignore_errors=True)  # the nodes' sessions and logs
 
 
 if __name__ == "__main__":
