@@ -332,7 +332,7 @@ class StageResources(Strict):
 class RuntimeConfig(Strict):
     """How the job runs on Ray."""
 
-    max_in_flight: int = Field(0, ge=0, description="tasks in flight per stage; 0 = twice the cluster's CPUs")
+    max_in_flight: int = Field(0, ge=0, description="tasks in flight per stage (backpressure); 0 = the cluster's CPUs / the stage's cpus per unit")
     max_retries: int = Field(3, ge=0, description="retries of a unit whose worker died (not of its errors)")
     inline_seconds: float = Field(4.0, ge=0, allow_inf_nan=False, description="executor auto: a stage whose remaining "
                                   "work is projected below this many seconds runs in-process instead of starting Ray")

@@ -37,14 +37,16 @@ def execute_unit(stage: Stage, run_root: str, unit: Unit, attempt: int) -> UnitO
     started = time.perf_counter()
     relative_log = str(log_file.relative_to(run.root))
     try:
-        logger.info("unit %s of stage %s, attempt %s, on %s%s", unit.id, stage.name, attempt, socket.gethostname(),
+        node = ray_node_id()
+        logger.info("unit %s of stage %s, attempt %s, on %s%s%s", unit.id, stage.name, attempt, socket.gethostname(),
+                    f" (Ray node {node})" if node else "",
                     f" (Ray retry {retry}: the worker of the previous attempt died)" if retry else "")
         staging = run.staging(stage.name, unit.id)
         context = UnitContext(stage.job, run, stage.name, unit, staging, logger)
         result = stage.run_unit(unit, context) or UnitResult()
         marker = run.commit_unit(stage.name, unit.id, staging, stage.unit_hash(unit),
                                  {**context.rows_written, **result.rows}, time.perf_counter() - started, attempt,
-                                 time.time(), socket.gethostname(), result.info)
+                                 time.time(), socket.gethostname(), result.info, node=node)
         logger.info("committed %s outputs (%s files) in %.2f s", len(marker.outputs), len(marker.files), marker.seconds)
         return UnitOutcome(stage.name, unit.id, "done", attempt, log_path=relative_log, seconds=marker.seconds)
     except Exception as error:  # noqa: BLE001 - every unit error is recorded, none escapes to Ray
@@ -60,17 +62,32 @@ def execute_unit(stage: Stage, run_root: str, unit: Unit, attempt: int) -> UnitO
 
 def ray_retry_number() -> int:
     """How often Ray has retried the task running this code (0 on a first try, in the driver, or without Ray)."""
-    ray = sys.modules.get("ray")
-    if ray is None or not ray.is_initialized():
+    worker = _ray_worker()
+    if worker is None:
         return 0
     try:
-        worker = ray._private.worker.global_worker
-        if worker.mode != ray.WORKER_MODE:
-            return 0
         # Not in Ray's public API (2.60); without it the attempt is the driver's count.
         return int(worker.core_worker.get_current_task_attempt_number())
     except (AttributeError, TypeError, ValueError):
         return 0
+
+
+def ray_node_id() -> str:
+    """The id of the Ray node whose worker runs this code; "" in the driver (inline units) or without Ray."""
+    if _ray_worker() is None:
+        return ""
+    import ray
+
+    return str(ray.get_runtime_context().get_node_id())
+
+
+def _ray_worker() -> object | None:
+    """Ray's worker object when this code runs as a Ray task, else None (Ray is not imported for this)."""
+    ray = sys.modules.get("ray")
+    if ray is None or not ray.is_initialized():
+        return None
+    worker = ray._private.worker.global_worker
+    return worker if worker.mode == ray.WORKER_MODE else None
 
 
 def append_to_unit_log(run: RunFolder, stage: str, unit: str, message: str) -> None:

@@ -60,6 +60,7 @@ class Marker:
     info: dict[str, Any] = field(default_factory=dict)
     files: list[OutputFile] = field(default_factory=list)
     version: int = MARKER_VERSION
+    node: str = ""  # the Ray node id of the worker that committed ("" inline): `host` is one name per machine
     # On object storage: logical path of each file -> its key, unique to the unit and attempt (relative
     # to the run's prefix). Empty on local disk, where files are renamed to their logical paths.
     keys: dict[str, str] = field(default_factory=dict)

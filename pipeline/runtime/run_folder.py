@@ -185,7 +185,7 @@ class RunFolder:
 
     def commit_unit(self, stage: str, unit: str, staging: Path, config_hash: str, rows: dict[str, int],
                     seconds: float, attempt: int, finished_at: float, host: str,
-                    info: dict[str, Any] | None = None) -> Marker:
+                    info: dict[str, Any] | None = None, node: str = "") -> Marker:
         """The commit protocol of one unit attempt (schemas/README.md): outputs into place, marker last.
 
         The old marker goes first: a process that dies during the commit leaves a unit that is simply
@@ -202,7 +202,7 @@ class RunFolder:
         keys = self._upload(stage, unit, staging, files) if self.store is not None else {}
         self.commit(staging, outputs, previous.outputs if previous else [])
         marker = Marker(stage, unit, config_hash, code_version(), outputs, rows, round(seconds, 3), attempt, host,
-                        finished_at, info or {}, files, keys=keys)
+                        finished_at, info or {}, files, node=node, keys=keys)
         self.write_marker(marker)
         if self.store is not None and previous is not None:  # the old attempt's objects, now named by nobody
             self.store.remove(sorted(set(previous.keys.values()) - set(keys.values())))

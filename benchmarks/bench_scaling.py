@@ -1,0 +1,325 @@
+"""Scaling of the runtime (not a test): the driver at 18,000 units, per-unit overhead, 1 vs 2 render workers, cost.
+
+Figures (each `--repeats` times unless said; median and spread; each against a peer in the same run):
+  driver_at_scale    one stage of `--units` (18,000 = the MVPd video count) no-op units planned, submitted
+                     and tracked on Ray (2 CPUs): the driver's peak RSS (psutil, sampled every 50 ms; target
+                     <= 1 GiB), the submission rate, the most tasks in flight (bounded by runtime.max_in_flight),
+                     and `mvpd status` of that run as a whole command (target < 5 s). Once: it takes minutes.
+  status_full_size_markers  `mvpd status` of `--status-units` no-op units whose markers name 120 files each
+                     (a full-scale render marker), against 1-file markers and an empty run (the command's
+                     start); extrapolated linearly to `--units`
+  unit_overhead      wall time per no-op unit on Ray (2 workers) against the inline executor (its peer, the
+                     same commit protocol without Ray); target <= 50 ms per unit
+  render_workers     render-stage frames per second with Ray limited to 1 and to 2 CPUs (same units, forced
+                     rerun); efficiency = fps(2) / (2 fps(1)); target >= 0.85
+  cost_model         from the measured per-frame CPU time at 640x480 and bytes per frame
+                     (benchmarks/results/render.json and a short re-measure): core-hours, wall time on
+                     1/8/32 nodes of 16 cores, and stored terabytes of the full job (18,000 videos, 6.06 M frames)
+
+    .venv/bin/python benchmarks/bench_scaling.py [--units 18000] [--repeats 3] [--only FIGURE ...]
+
+Writes benchmarks/results/scaling.json. The machine is shared (the load average is recorded): compare ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+
+import psutil  # noqa: E402
+import ray  # noqa: E402
+import ray.cloudpickle  # noqa: E402
+
+from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources, load_job  # noqa: E402
+from pipeline.runtime.executor import plan_stage, run_stage  # noqa: E402
+from pipeline.runtime.run_folder import RunFolder  # noqa: E402
+from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult  # noqa: E402
+
+RESULTS = REPO / "benchmarks" / "results" / "scaling.json"
+RENDER_RESULTS = REPO / "benchmarks" / "results" / "render.json"
+PYTHON = sys.executable
+MVPD_VIDEOS = 18_000
+MVPD_FRAMES = 6_060_000
+NODE_CORES = 16
+NODE_COUNTS = (1, 8, 32)
+# A full-scale render marker: ~340 frames, 16 frames per shard, 5 arrays (+ their zarr.json) and 3 parts.
+FULL_SCALE_MARKER_FILES = 120
+FIGURES = ("driver_at_scale", "status_full_size_markers", "unit_overhead", "render_workers", "cost_model")
+
+
+class NoopStage(Stage):
+    """A benchmark-only stage of `count` units that do no work but commit `files` 8-byte files each (so every
+    marker carries a manifest, as real ones do)."""
+
+    name = "noop"
+
+    def __init__(self, job: Job, count: int, files: int = 1):
+        super().__init__(job)
+        self.count = count
+        self.files = files
+
+    def units(self, run: RunFolder) -> list[Unit]:
+        return [Unit(f"u{index:06d}") for index in range(self.count)]
+
+    def run_unit(self, unit: Unit, context: UnitContext) -> UnitResult:
+        for index in range(self.files):
+            context.staged_path(f"noop/{unit.id}/{index:03d}.bin").write_bytes(b"noop-out")
+        return UnitResult()
+
+
+ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # workers cannot import benchmarks/
+
+
+def noop_job(max_in_flight: int = 0) -> Job:
+    return Job.model_validate({"name": "noop", "seed": 0, "scenes": SceneSources(procedural=ProceduralSource(count=1)),
+                               "embodiments": [Embodiment(name="a", placements=[1.0])],
+                               "runtime": {"max_in_flight": max_in_flight}})
+
+
+class PeakRss:
+    """The peak resident memory of this process, sampled in a thread (the driver, not Ray's workers)."""
+
+    def __init__(self, every_s: float = 0.05):
+        self.peak = 0
+        self._every = every_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+
+    def _sample(self) -> None:
+        process = psutil.Process()
+        while not self._stop.is_set():
+            self.peak = max(self.peak, process.memory_info().rss)
+            self._stop.wait(self._every)
+
+    def __enter__(self) -> "PeakRss":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def summary(values: list[float]) -> dict[str, Any]:
+    return {"median": round(statistics.median(values), 4), "min": round(min(values), 4), "max": round(max(values), 4),
+            "runs": [round(v, 4) for v in values]}
+
+
+def start_ray(cpus: int) -> None:
+    ray.shutdown()
+    ray.init(address="local", num_cpus=cpus, include_dashboard=False, log_to_driver=False, logging_level="ERROR")
+
+
+def driver_at_scale(units: int, workdir: Path) -> dict[str, Any]:
+    """Plan, submit and track `units` no-op units on Ray; then time `mvpd status` of the run."""
+    start_ray(2)
+    run = RunFolder.create(workdir / "scale", noop_job())
+    stage = NoopStage(run.job(), units)
+    rss_before = psutil.Process().memory_info().rss
+    in_flight = InFlightProbe()
+    with PeakRss() as peak:
+        began = time.perf_counter()
+        plan = plan_stage(stage, run)
+        planned_s = time.perf_counter() - began
+        with in_flight:
+            report = run_stage(stage, run, executor="ray")
+        total_s = time.perf_counter() - began
+    assert report.done == units and len(plan.to_run) == units, report.summary()
+    status_s = time_status(run)
+    return {"units": units, "driver_rss_before_gib": round(rss_before / 2**30, 3),
+            "driver_peak_rss_gib": round(peak.peak / 2**30, 3), "target_driver_gib": 1.0,
+            "plan_s": round(planned_s, 2), "stage_s": round(total_s, 1),
+            "units_per_s": round(units / report.seconds, 1), "most_in_flight": in_flight.most,
+            "in_flight_limit": "runtime.max_in_flight, 0 = the cluster's CPUs / the stage's cpus (here 2)",
+            "status_s": summary(status_s), "target_status_s": 5.0,
+            "marker_files_per_unit": 1,
+            "note": "status stats every file a marker names; status_full_size_markers measures markers of "
+                    "full-scale render size"}
+
+
+class InFlightProbe:
+    """Counts the Ray tasks submitted but not yet collected by wrapping `ray.wait` (its first argument is
+    the in-flight list of `run_on_ray`)."""
+
+    def __init__(self) -> None:
+        self.most = 0
+        self._original: Callable[..., Any] = ray.wait
+
+    def __enter__(self) -> "InFlightProbe":
+        def counting_wait(refs: list[Any], *args: Any, **kwargs: Any) -> Any:
+            self.most = max(self.most, len(refs))
+            return self._original(refs, *args, **kwargs)
+
+        ray.wait = counting_wait
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        ray.wait = self._original
+
+
+def time_status(run: RunFolder, repeats: int = 3) -> list[float]:
+    """Seconds of `mvpd status RUN` as a whole command (a fresh process, as a user runs it)."""
+    command = [PYTHON, "-c", "from pipeline.cli.main import app; app()", "status", str(run.root)]
+    return [timed(lambda: subprocess.run(command, check=True, capture_output=True, env=cli_env()))
+            for _ in range(repeats)]
+
+
+def status_with_full_size_markers(units: int, files: int, target_units: int, workdir: Path) -> dict[str, Any]:
+    """`mvpd status` of `units` no-op units whose markers name `files` files each (a full-scale render
+    marker's size), against the same run's units with one file: linear in units, so extrapolated to
+    `target_units` from the per-unit cost above the command's start."""
+    start_ray(2)
+    seconds = {}
+    for count in (files, 1):
+        run = RunFolder.create(workdir / f"status-{count}", noop_job())
+        assert run_stage(NoopStage(run.job(), units, count), run, executor="ray").done == units
+        seconds[count] = time_status(run)
+    empty = RunFolder.create(workdir / "status-empty", noop_job())
+    start_s = statistics.median(time_status(empty))
+    per_unit_s = (statistics.median(seconds[files]) - start_s) / units
+    return {"units": units, "files_per_marker": files, "status_s": summary(seconds[files]),
+            "status_s_one_file_markers": summary(seconds[1]), "status_s_empty_run": round(start_s, 3),
+            "ms_per_unit": round(1000 * per_unit_s, 3),
+            f"extrapolated_status_s_at_{target_units}": round(start_s + per_unit_s * target_units, 1),
+            "target_status_s": 5.0}
+
+
+def cli_env() -> dict[str, str]:
+    return {**{k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}, "PYTHONPATH": str(REPO)}
+
+
+def timed(action: Callable[[], object]) -> float:
+    began = time.perf_counter()
+    action()
+    return time.perf_counter() - began
+
+
+def unit_overhead(units: int, repeats: int, workdir: Path) -> dict[str, Any]:
+    """Wall time per no-op unit on Ray (2 CPUs) and inline, interleaved."""
+    start_ray(2)
+    ray_ms, inline_ms = [], []
+    for index in range(repeats):
+        for executor, sink in (("ray", ray_ms), ("local", inline_ms)):
+            run = RunFolder.create(workdir / f"overhead-{executor}-{index}", noop_job())
+            report = run_stage(NoopStage(run.job(), units), run, executor=executor)
+            assert report.done == units, report.summary()
+            sink.append(1000 * report.seconds / units)
+    return {"units": units, "ray_ms_per_unit": summary(ray_ms), "inline_ms_per_unit": summary(inline_ms),
+            "ray_over_inline": round(statistics.median(ray_ms) / statistics.median(inline_ms), 2),
+            "target_ms_per_unit": 50.0,
+            "note": "wall time of the whole stage / units (plan, submit, commit, marker, status) with 2 workers"}
+
+
+RENDER_JOB = """
+name: scaling
+seed: 0
+scenes:
+  procedural: {count: 2, seed: 0, detail: 0.5}
+embodiments:
+  - name: cam
+    sensor: {width: 640, height: 480, hfov: 69.0}
+    placements: [1.0]
+    body: {radius: 0.15, height: 1.2}
+plan: {trajectories_per_scene: 2, min_frames: 60, max_frames: 60}
+"""
+
+
+def render_workers(repeats: int, workdir: Path) -> dict[str, Any]:
+    """Render-stage fps with Ray on 1 and on 2 CPUs (the same 4 videos, forced), interleaved."""
+    from pipeline.stages import make_stage
+
+    (workdir / "render.yaml").write_text(RENDER_JOB, encoding="utf-8")
+    job = load_job(workdir / "render.yaml")
+    run = RunFolder.create(workdir / "render", job)
+    for name in ("shard", "plan"):
+        assert not run_stage(make_stage(name, job), run, executor="local").failed
+    fps: dict[int, list[float]] = {1: [], 2: []}
+    frames = 0
+    cpu_ms_per_frame = []
+    for _ in range(repeats):
+        for cpus in (1, 2):
+            start_ray(cpus)
+            report = run_stage(make_stage("render", job), run, force=True, executor="ray")
+            assert not report.failed, report.summary()
+            frames = run.read("videos").column("frames").to_pylist()
+            total = sum(frames)
+            fps[cpus].append(total / report.seconds)
+            if cpus == 1:
+                cpu_ms_per_frame.append(1000 * report.seconds / total)
+    stored = sum(f.size for m in run.markers("render").values() for f in m.files)
+    efficiency = [two / (2 * one) for one, two in zip(fps[1], fps[2])]
+    return {"videos": len(frames), "frames": sum(frames), "resolution": [640, 480],
+            "fps_1_worker": summary(fps[1]), "fps_2_workers": summary(fps[2]), "efficiency": summary(efficiency),
+            "target_efficiency": 0.85, "wall_ms_per_frame_1_worker": summary(cpu_ms_per_frame),
+            "bytes_per_frame": round(stored / sum(frames))}
+
+
+def cost_model(render: dict[str, Any]) -> dict[str, Any]:
+    """Core-hours, wall time on N nodes and terabytes of the full job from the measured per-frame figures."""
+    earlier = json.loads(RENDER_RESULTS.read_text())
+    ms_per_frame = render["wall_ms_per_frame_1_worker"]["median"]
+    earlier_ms = earlier["parallel_workers"]["cpu_ms_per_frame"]
+    efficiency = min(1.0, render["efficiency"]["median"])
+    core_hours = MVPD_FRAMES * ms_per_frame / 1000 / 3600
+    bytes_per_frame = render["bytes_per_frame"]
+    return {"videos": MVPD_VIDEOS, "frames": MVPD_FRAMES, "resolution": [640, 480],
+            "ms_per_frame_per_core": ms_per_frame, "earlier_cpu_ms_per_frame_render_json": earlier_ms,
+            "core_hours": round(core_hours, 1),
+            "wall_hours_on_nodes": {f"{n}x{NODE_CORES}": round(core_hours / (n * NODE_CORES * efficiency), 2)
+                                    for n in NODE_COUNTS},
+            "efficiency_assumed": round(efficiency, 3),
+            "bytes_per_frame": bytes_per_frame,
+            "earlier_kb_per_frame_render_json": [earlier["kb_per_frame_ambient"], earlier["kb_per_frame_spot"]],
+            "stored_tb": round(MVPD_FRAMES * bytes_per_frame / 1e12, 3),
+            "note": "one embodiment per video; wall time assumes the 2-worker efficiency holds per node and "
+                    "ignores scene preparation (shard) and the object-storage overhead (measured by objstore)"}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--units", type=int, default=MVPD_VIDEOS)
+    parser.add_argument("--overhead-units", type=int, default=300)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--status-units", type=int, default=1000, help="units of the full-size-marker status run")
+    parser.add_argument("--only", nargs="+", choices=FIGURES, default=list(FIGURES),
+                        help="measure these figures; the others keep their values of the last run")
+    args = parser.parse_args()
+    results: dict[str, Any] = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+    results["machine"] = {"cpus": os.cpu_count(), "python": sys.version.split()[0]}
+    figures: dict[str, Callable[[Path], dict[str, Any]]] = {
+        # The driver's figure first, while the process holds nothing but its imports.
+        "driver_at_scale": lambda workdir: driver_at_scale(args.units, workdir),
+        "status_full_size_markers": lambda workdir: status_with_full_size_markers(
+            args.status_units, FULL_SCALE_MARKER_FILES, args.units, workdir),
+        "unit_overhead": lambda workdir: unit_overhead(args.overhead_units, args.repeats, workdir),
+        "render_workers": lambda workdir: render_workers(args.repeats, workdir),
+        "cost_model": lambda workdir: cost_model(results["render_workers"]),
+    }
+    with tempfile.TemporaryDirectory(prefix="bench-scaling-") as scratch:
+        for name in FIGURES:
+            if name in args.only:
+                load_before = os.getloadavg()[0]
+                results[name] = figures[name](Path(scratch))
+                # The machine is shared: the 1-minute load average around each figure says how much.
+                results[name]["load_average_1m"] = [round(load_before, 2), round(os.getloadavg()[0], 2)]
+                print(name, json.dumps(results[name], indent=1), flush=True)
+    ray.shutdown()
+    RESULTS.write_text(json.dumps(results, indent=1) + "\n")
+    print(f"wrote {RESULTS}")
+
+
+if __name__ == "__main__":
+    main()
