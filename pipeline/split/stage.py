@@ -124,7 +124,7 @@ class VideoScreener(Stage):
             from videos v join frame_stats f using (embodiment, video_name)
             where v.embodiment = $embodiment
             group by v.embodiment, v.video_name, v.scene_id, v.width, v.height order by v.video_name"""
-        table = _connect(run, "videos", "frame_stats").execute(query, {"embodiment": embodiment}).to_arrow_table()
+        table = _connect(run, "videos", "frame_stats").sql(query, params={"embodiment": embodiment}).to_arrow_table()
         empty = [void > threshold * pixels for void, pixels in
                  zip(table.column("max_void_pixels").to_pylist(), table.column("pixels").to_pylist())]
         table = table.append_column("empty", pa.array(empty, pa.bool_()))
@@ -174,7 +174,7 @@ def _videos_of_instances(run: "RunFolder", categories: list[int]) -> dict[tuple[
         select distinct v.scene_id, s.object_id, s.embodiment, s.video_name
         from segments s join videos v using (embodiment, video_name)
         where s.category in ({", ".join(str(int(c)) for c in categories)})"""
-    table = _connect(run, "segments", "videos").execute(query).to_arrow_table()
+    table = _connect(run, "segments", "videos").sql(query).to_arrow_table()
     videos_of: dict[tuple[str, int], set[Video]] = defaultdict(set)
     columns = [table.column(c).to_pylist() for c in ("scene_id", "object_id", "embodiment", "video_name")]
     for scene, object_id, embodiment, video in zip(*columns):
