@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 import signal
 import threading
 import time
@@ -19,6 +18,7 @@ from typer.core import TyperGroup
 
 from pipeline.runtime.executor import StagePlan, StageReport
 from pipeline.runtime.ray_session import got_sigterm
+from pipeline.runtime.run_folder import is_plain_name
 from pipeline.runtime.runner import Observer
 from pipeline.runtime.status import UnitOutcome
 
@@ -75,10 +75,10 @@ def fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
 
 
 def check_plain_name(value: str, option: str) -> str:
-    """`value` when it is a plain file name (letters, digits, `_`, `-`, `.`; not `.` or `..`), else a
-    one-line exit 2: a name from the command line never becomes a path outside the folder it names."""
-    if not re.fullmatch(r"[A-Za-z0-9_.\-]+", value) or set(value) == {"."}:
-        fail(f"{option} {value!r}: not a plain name; use letters, digits, '_', '-' and '.' (no '/' or '..')")
+    """`value` when it is a plain name (`is_plain_name`), else a one-line exit 2: a name from the command
+    line never becomes a path outside the folder it names."""
+    if not is_plain_name(value):
+        fail(f"{option} {value!r}: not a plain name; use letters, digits, '_', '-' and inner '.' (no '/', no leading '.')")
     return value
 
 

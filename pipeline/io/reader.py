@@ -11,8 +11,6 @@ importable (it wraps the same clip index).
 
 from __future__ import annotations
 
-import os
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Sequence
@@ -21,6 +19,7 @@ import numpy as np
 
 from pipeline.io.zarr_video import open_video
 from pipeline.lazy_import import lazy_module
+from pipeline.runtime.run_folder import is_plain_name, run_root
 
 zarr = lazy_module("zarr")  # loaded on first use (see pipeline.io.zarr_video)
 
@@ -41,9 +40,9 @@ def _split_videos(run: Any, split: str | None) -> set[tuple[str, str]] | None:
         return None
     from pipeline.split.selection import accepted_videos
 
-    accepted = accepted_videos(_run_root(run), split)
+    accepted = accepted_videos(run_root(run), split)
     if accepted is None:
-        raise VideoNotFoundError(f"{_run_root(run)}: the run has no split (no `splits` table); add a `split:` section "
+        raise VideoNotFoundError(f"{run_root(run)}: the run has no split (no `splits` table); add a `split:` section "
                                  "to the job and run `mvpd submit` again, or omit split=")
     return set(accepted)
 
@@ -100,29 +99,18 @@ class LoadedVideo:
         return item
 
 
-def _run_root(run: Any) -> Path:
-    """The root folder of a RunFolder or of a path (a Path's own `.root` is "/", so test for paths first)."""
-    from pipeline.runtime.object_store import remote_url
-    from pipeline.runtime.run_folder import RunFolder
-
-    if isinstance(run, (str, os.PathLike)) and remote_url(run) is not None:
-        return RunFolder.open(run).root  # an object-store URL: its working copy, brought up to date
-    path = run if isinstance(run, (str, os.PathLike)) else run.root
-    return Path(path).expanduser().resolve()
-
-
 def list_videos(run: Any) -> list[tuple[str, str]]:
     """(embodiment, video_name) of every rendered video of a run, sorted (from its `videos` table)."""
     from pipeline.io.tables import read_dataset
 
-    table = read_dataset(_run_root(run), "videos")
+    table = read_dataset(run_root(run), "videos")
     return sorted(zip(table.column("embodiment").to_pylist(), table.column("video_name").to_pylist()))
 
 
 def _resolve_embodiment(run: Any, name: str, embodiment: str | None) -> str:
     """The embodiment of the stored video `name`. Only a plain name (letters, digits, `_`, `-`, inner dots)
     is looked up, so `../x`, `e/v` or an absolute name finds nothing and nothing outside the run is touched."""
-    root = _run_root(run)
+    root = run_root(run)
     hint = f"`mvpd query {root} \"select embodiment, video_name from videos\"` lists them"
     found = _video_embodiments(root / "videos", name, embodiment)
     if embodiment is not None:
@@ -136,13 +124,10 @@ def _resolve_embodiment(run: Any, name: str, embodiment: str | None) -> str:
     return found[0]
 
 
-PLAIN_NAME = re.compile(r"^[A-Za-z0-9_\-][A-Za-z0-9_.\-]*$")
-
-
 def _video_embodiments(videos: Path, name: str, embodiment: str | None) -> list[str]:
     """Embodiments (all, or just `embodiment`) holding a store for video `name`: one stat per embodiment, no
     listing of the videos (a run holds 18,000); names that are not plain never reach the file system."""
-    if not (PLAIN_NAME.match(name) and (embodiment is None or PLAIN_NAME.match(embodiment))) or not videos.is_dir():
+    if not (is_plain_name(name) and (embodiment is None or is_plain_name(embodiment))) or not videos.is_dir():
         return []
     candidates = [embodiment] if embodiment is not None else sorted(f.name for f in videos.iterdir() if f.is_dir())
     return [e for e in candidates if (videos / e / f"{name}.zarr").is_dir()]
@@ -184,7 +169,7 @@ def load_video(run: Any, name: str, embodiment: str | None = None, split: str | 
     """Open one video of a run lazily. `run` is a RunFolder or a path; `embodiment` is needed only when
     several embodiments rendered a video of that name; with `split`, a video the split rejected (empty,
     or zero-shot in train) or that is in another split is not found."""
-    root = _run_root(run)
+    root = run_root(run)
     embodiment = _resolve_embodiment(root, name, embodiment)
     accepted = _split_videos(root, split)
     if accepted is not None and (embodiment, name) not in accepted:
@@ -217,7 +202,7 @@ def clip_index(run: Any, clip_len: int, stride: int | None = None,
     stride = stride or clip_len
     from pipeline.io.tables import read_dataset
 
-    run = _run_root(run)
+    run = run_root(run)
     table = read_dataset(run, "videos")
     frames = {(e, n): f for e, n, f in zip(table.column("embodiment").to_pylist(),
                                              table.column("video_name").to_pylist(), table.column("frames").to_pylist())}
@@ -232,7 +217,7 @@ def iter_clips(run: Any, clip_len: int, stride: int | None = None, videos: Seque
                arrays: Sequence[str] = PIXEL_ARRAYS, split: str | None = None) -> Iterator[dict[str, Any]]:
     """Yield clips (dicts of numpy arrays with a leading time axis, poses and keys) of a run's videos
     (with `split`: of that split's accepted videos only)."""
-    run = _run_root(run)  # an object-store URL is brought up to date once, not once per video
+    run = run_root(run)  # an object-store URL is brought up to date once, not once per video
     opened: dict[tuple[str, str], LoadedVideo] = {}
     for embodiment, name, start in clip_index(run, clip_len, stride, videos, split):
         if (embodiment, name) not in opened:
@@ -264,7 +249,7 @@ def _torch_dataset_class() -> type:
 
         def __init__(self, run: Any, clip_len: int, stride: int | None = None,
                      videos: Sequence[tuple[str, str]] | None = None, split: str | None = None):
-            self.run = _run_root(run)
+            self.run = run_root(run)
             self.index = clip_index(self.run, clip_len, stride, videos, split)
             self.clip_len = clip_len
 

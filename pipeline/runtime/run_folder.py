@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import shutil
 import socket
 import time
@@ -58,6 +59,28 @@ log = logging.getLogger(__name__)
 STAGE_START = f"{STATE}/stage-start.txt"
 _PULLED_FOR: dict[tuple[str, str], str] = {}
 
+
+
+# A name the run looks up (a video, a split, an embodiment): no separator and no leading dot, so it can
+# never leave the folder it names (`..`, `/abs`, `e/v` are not plain).
+PLAIN_NAME = re.compile(r"[A-Za-z0-9_\-][A-Za-z0-9_.\-]*")
+
+
+def is_plain_name(name: str) -> bool:
+    """True when `name` may be looked up inside one folder of the run (see PLAIN_NAME)."""
+    return PLAIN_NAME.fullmatch(name) is not None
+
+
+def run_root(run: "RunFolder | str | os.PathLike[str]") -> Path:
+    """The local root of a RunFolder or a path; of an object-store URL, its working copy, brought up to date.
+
+    (A Path's own `.root` is "/", so paths are tested for first.)
+    """
+    if isinstance(run, (str, os.PathLike)):
+        if remote_url(run) is not None:
+            return RunFolder.open(run).root
+        return Path(run).expanduser().resolve()
+    return run.root
 
 class RunFolderError(ValueError):
     """A path that is not a usable run folder; the message says why and what to do."""

@@ -7,27 +7,21 @@ empty set, and each caller says so in its own words.
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
 from typing import Any
 
 from pipeline.config import SPLIT_NAMES
+from pipeline.runtime.run_folder import run_root
 
 
 class UnknownSplitError(ValueError):
     """A split name that is not train, val or test."""
 
 
-def _root(run: Any) -> Path:
-    path = run if isinstance(run, (str, os.PathLike)) else run.root
-    return Path(path).expanduser().resolve()
-
-
 def has_split(run: Any) -> bool:
     """True when the split stage committed its `splits` table in this run."""
     from pipeline.io.tables import dataset_parts
 
-    return bool(dataset_parts(_root(run), "splits"))
+    return bool(dataset_parts(run_root(run), "splits"))
 
 
 def check_split_name(split: str) -> str:
@@ -40,7 +34,7 @@ def split_rows(run: Any) -> list[dict[str, Any]]:
     """Every `splits` row of the run (empty without a split stage)."""
     from pipeline.io.tables import read_dataset
 
-    return read_dataset(_root(run), "splits").to_pylist() if has_split(run) else []
+    return read_dataset(run_root(run), "splits").to_pylist() if has_split(run) else []
 
 
 def accepted_videos(run: Any, split: str) -> list[tuple[str, str]] | None:
@@ -59,6 +53,6 @@ def zero_shot_objects(run: Any) -> set[tuple[str, int]]:
     """(scene_id, object_id) of every unseen (zero-shot) object instance; empty without split output."""
     from pipeline.io.tables import read_dataset
 
-    table = read_dataset(_root(run), "zero_shot_instances")
+    table = read_dataset(run_root(run), "zero_shot_instances")
     return {(s, int(o)) for s, o, unseen in zip(table.column("scene_id").to_pylist(), table.column("object_id").to_pylist(),
                                                 table.column("unseen").to_pylist()) if unseen}
