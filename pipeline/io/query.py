@@ -21,7 +21,6 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import duckdb
-import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline.io.tables import damage_line, damaged_parts, dataset_parts

@@ -144,9 +144,6 @@ def retire_units(run: RunFolder, stage: str, unit_ids: list[str]) -> None:
             run.store.remove(sorted(marker.keys.values()))
 
 
-ProgressCallback = Callable[[UnitOutcome], None]
-
-
 def run_stage(stage: Stage, run: RunFolder, force: bool = False, address: str | None = None,
               on_start: Callable[[StagePlan], None] | None = None, on_unit: ProgressCallback | None = None,
               executor: ExecutorName = "auto") -> StageReport:

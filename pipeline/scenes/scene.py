@@ -14,7 +14,6 @@ process memory, reading a 1 M-triangle HM3DSem trio at about 0.3 GiB (both far u
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable
 
 import numpy as np

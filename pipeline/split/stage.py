@@ -117,7 +117,7 @@ class VideoScreener(Stage):
         """Per video, the worst frame's void pixels; empty when above the threshold (the authors' `>`)."""
         run = context.run
         threshold = _split_config(self.job).empty_threshold
-        query = f"""
+        query = """
             select v.embodiment, v.video_name, v.scene_id, count(f.frame)::int as frames,
                    round(max(f.void_fraction) * v.width * v.height)::bigint as max_void_pixels,
                    (v.width * v.height)::bigint as pixels
