@@ -23,7 +23,8 @@ from pathlib import Path
 import duckdb
 import pyarrow.parquet as pq
 
-from pipeline.io.tables import damage_line, damaged_parts, dataset_parts
+from pipeline.io.tables import damage_line, trusted_parts
+from pipeline.runtime.markers import Damage
 from pipeline.runtime.run_folder import RunFolder
 
 log = logging.getLogger(__name__)
@@ -52,8 +53,9 @@ def connect(run: RunFolder, only: Sequence[str] | None = None) -> duckdb.DuckDBP
     """
     connection = duckdb.connect(":memory:")
     datasets = [d for d in run.datasets() if only is None or d in only]
-    _report_damage(run, datasets)
-    parts = {dataset: [str(path) for path in dataset_parts(run.root, dataset)] for dataset in datasets}
+    found = {dataset: trusted_parts(run.root, dataset) for dataset in datasets}
+    _report_damage({dataset: damaged for dataset, (_, damaged) in found.items()})
+    parts = {dataset: [str(path) for path in paths] for dataset, (paths, _) in found.items()}
     scans = {dataset: _scan(files) for dataset, files in parts.items() if files}
     for dataset, scan in scans.items():
         connection.execute(f'CREATE VIEW "{dataset}" AS {scan}')
@@ -86,9 +88,8 @@ def _literal(text: str) -> str:
     return "'" + text.replace("'", "''") + "'"
 
 
-def _report_damage(run: RunFolder, datasets: list[str]) -> None:
-    """Rows of damaged units are left out (`dataset_parts`); say so once, on stderr (json output stays clean)."""
-    damaged = {dataset: damaged_parts(run.root, dataset) for dataset in datasets}
+def _report_damage(damaged: dict[str, list[Damage]]) -> None:
+    """Rows of damaged units are left out (`trusted_parts`); say so once, on stderr (json output stays clean)."""
     affected = [dataset for dataset, found in damaged.items() if found]
     if affected:
         log.warning("%s", damage_line(", ".join(affected), sorted({d for found in damaged.values() for d in found},

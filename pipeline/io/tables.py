@@ -11,8 +11,9 @@ from pipeline.runtime.tables import (  # noqa: F401 - re-exported names
     register,
     spec,
     to_table,
+    trusted_parts,
     write_part,
 )
 
 __all__ = ["TableSpec", "all_tables", "column", "damage_line", "damaged_parts", "dataset_parts", "read_dataset",
-           "register", "spec", "to_table", "write_part"]
+           "register", "spec", "to_table", "trusted_parts", "write_part"]

@@ -128,6 +128,13 @@ def _trusted_parts(run_root: Path, dataset: str) -> tuple[list[_Part], list[Dama
     return sorted(parts, key=lambda p: p.path), damaged
 
 
+def trusted_parts(run_root: Path, dataset: str) -> tuple[list[Path], list[Damage]]:
+    """`dataset_parts` and `damaged_parts` from one pass over the markers (a reader that reports damage
+    and then reads checks each committed file once, not twice)."""
+    parts, damaged = _trusted_parts(run_root, dataset)
+    return [p.path for p in parts], damaged
+
+
 def dataset_parts(run_root: Path, dataset: str) -> list[Path]:
     """The readable, marker-trusted part files of `dataset`, sorted: the one way every reader finds parts.
 
