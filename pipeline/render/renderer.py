@@ -12,10 +12,13 @@ import cv2
 import numpy as np
 
 from pipeline.config import Embodiment
+from pipeline.lazy_import import lazy_module
 from pipeline.render.lighting import Shader, SurfaceColors
 from pipeline.render.raycaster import Camera, RayHits, SceneRaycaster, row_bands, thread_pool
 from pipeline.render.sensors import StructuredLightModel, depth_to_millimetres, sensor_model
 from pipeline.scenes.scene import Scene
+
+zarr = lazy_module("zarr")  # loaded on first use: only a rendering worker sizes its pool
 
 
 # Fewest row bands a frame is shaded in (see VideoRenderer.__init__).
@@ -134,9 +137,13 @@ class VideoRenderer:
 
 
 def limit_worker_threads(threads: int) -> None:
-    """Size OpenCV's thread pool (albedo planes, colour look-ups) to a worker's CPU budget.
+    """Size OpenCV's thread pool (albedo planes, colour look-ups) and Zarr's (chunk compression) to a
+    worker's CPU budget.
 
-    OpenCV counts the host's cores, so 1-CPU Ray workers would each run 2+ threads against each other's
-    Embree casts. A per-process setting: call it once where a worker starts rendering, not in libraries.
+    Both count the host's cores, so 1-CPU Ray workers would each run several threads against each other's
+    Embree casts: Zarr compresses a shard's 16 chunks in parallel, and a 1-CPU render worker kept 1.34
+    cores busy (measured), which no second worker on the same cores can match. A per-process setting:
+    call it once where a worker starts rendering, before it writes its first store, not in libraries.
     """
     cv2.setNumThreads(max(1, threads))
+    zarr.config.set({"threading.max_workers": max(1, threads)})
