@@ -88,19 +88,20 @@ def attempt_prefix(key: str) -> str:
 def _collect_store(store: RunStore, report: GarbageReport, on_progress: GarbageProgress | None) -> None:
     live = live_attempts(store)
     dead: dict[str, list[str]] = {}
-    sizes = store.list_objects(ATTEMPTS)
-    for key, size in sizes.items():
+    kept: set[str] = set()
+    for key, size in store.list_objects(ATTEMPTS).items():
         prefix = attempt_prefix(key)
         if prefix in live or key.count("/") < 4:
             continue
-        owner, pid, _ = (prefix.rsplit("/", 1)[-1].rsplit(".", 2) + ["", ""])[:3]  # <host>.<pid>.<time_ns>
-        if _alive_here(owner, pid):
-            report.kept_alive.append(prefix) if prefix not in report.kept_alive else None
+        host, _, pid = prefix.rsplit("/", 1)[-1].rpartition(".")[0].rpartition(".")  # <host>.<pid>.<time_ns>
+        if _alive_here(host, pid):
+            kept.add(prefix)
             continue
         dead.setdefault(prefix, []).append(key)
         report.bytes += size
     doomed = sorted(k for keys in dead.values() for k in keys)
     report.attempts = sorted(dead)
+    report.kept_alive.extend(sorted(kept))
     report.objects = len(doomed)
     if report.dry_run:
         return

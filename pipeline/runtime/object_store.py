@@ -219,16 +219,13 @@ class RunStore:
         key = self.key(relative)
         if not _is_s3(self.fs):
             with _EMULATED_CONDITIONS:
-                try:
-                    if _content_tag(self.fs.cat_file(key)) != tag:
-                        return None
-                except FileNotFoundError:
+                if self._emulated_tag(key) != tag:
                     return None
                 self.fs.pipe_file(key, data)
                 return _content_tag(data)
         try:
             response = self.fs.pipe_file(key, data, IfMatch=tag)
-        except (FileNotFoundError, OSError) as error:
+        except OSError as error:
             if isinstance(error, FileNotFoundError) or _lost_a_condition(error):
                 return None
             raise
@@ -239,23 +236,27 @@ class RunStore:
         key = self.key(relative)
         if not _is_s3(self.fs):
             with _EMULATED_CONDITIONS:
-                try:
-                    if _content_tag(self.fs.cat_file(key)) != tag:
-                        return False
-                except FileNotFoundError:
+                if self._emulated_tag(key) != tag:
                     return False
                 self.fs.rm_file(key)
                 return True
         bucket, name, _ = self.fs.split_path(key)
         try:
             self.fs.call_s3("delete_object", Bucket=bucket, Key=name, IfMatch=tag)
-        except (FileNotFoundError, OSError) as error:
+        except OSError as error:
             if isinstance(error, FileNotFoundError) or _lost_a_condition(error):
                 return False
             raise
         finally:
             self.fs.invalidate_cache(key)
         return True
+
+    def _emulated_tag(self, key: str) -> str | None:
+        """The content tag of `key` on a store without conditions (None when absent); hold _EMULATED_CONDITIONS."""
+        try:
+            return _content_tag(self.fs.cat_file(key))
+        except FileNotFoundError:
+            return None
 
     def list_objects(self, folder: str) -> dict[str, int]:
         """Relative key -> size of every object below `folder` (a listing: for gc, never a hot path)."""
