@@ -26,7 +26,7 @@ import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterator, Union
+from typing import TYPE_CHECKING, Iterator
 
 import psutil
 
@@ -178,6 +178,9 @@ class RemoteRunLock:
             if found is None:
                 continue
             holder = _parse(found.data)
+            if self._is_mine(holder):  # our create succeeded, its answer was lost and the retry was refused
+                self._tag = found.tag
+                return
             if not _is_stale(holder, found.modified):
                 raise RunLockedError(_held_message(self.store.url, LOCK_KEY, holder))
             log.info("%s: taking over the stale lock of %s", self.store.url, holder)
@@ -202,18 +205,29 @@ class RemoteRunLock:
     def _beat(self) -> None:
         while not self._stop.wait(HEARTBEAT_SECONDS):
             try:
-                tag = self.store.replace_object(LOCK_KEY, self._record(), self._tag or "")
+                if not self._refresh():  # judged dead and taken over: never overwrite the new owner
+                    log.error("%s: the run lock was taken over by another driver", self.store.url)
+                    self._tag = None
+                    return
             except OSError as error:  # a store hiccup: the next beat tries again, well before STALE_SECONDS
                 log.warning("%s: heartbeat of the run lock failed (%s)", self.store.url, error)
-                continue
-            if tag is None:  # judged dead and taken over: never overwrite the new owner
-                log.error("%s: the run lock was taken over by another driver", self.store.url)
-                self._tag = None
-                return
-            self._tag = tag
+
+    def _refresh(self) -> bool:
+        """Rewrite the lock with a new heartbeat while it is ours; False when another driver holds it now."""
+        tag = self.store.replace_object(LOCK_KEY, self._record(), self._tag or "")
+        if tag is None:
+            found = self.store.read_object(LOCK_KEY)
+            if found is None or not self._is_mine(_parse(found.data)):
+                return False
+            tag = found.tag  # our earlier write landed, its answer was lost and the retry was refused
+        self._tag = tag
+        return True
+
+    def _is_mine(self, holder: dict | None) -> bool:
+        return holder is not None and holder.get("owner") == self._owner
 
 
-def run_lock(run: "RunFolder") -> Union[RunLock, RemoteRunLock]:
+def run_lock(run: "RunFolder") -> RunLock | RemoteRunLock:
     """The lock of a run folder: on its object store for a remote run, else the local lock file."""
     return RemoteRunLock(run.store) if run.store is not None else RunLock(run.root)
 

@@ -136,6 +136,12 @@ def test_a_stale_lock_is_taken_over_and_a_live_one_is_not(s3, tiny_url):
     with RemoteRunLock(store):
         assert lock_object(s3, tiny_url)["pid"] == os.getpid()
     assert lock_object(s3, tiny_url) is None
+    # A create that landed but whose answer was lost (the client's retry then fails If-None-Match): ours, kept.
+    landed = RemoteRunLock(store)
+    store.put_text(LOCK_KEY, landed._record().decode())
+    with landed:
+        assert lock_object(s3, tiny_url)["owner"] == landed._owner
+    assert lock_object(s3, tiny_url) is None
 
 
 def test_heartbeat_refreshes_the_lock_and_never_overwrites_a_new_owner(s3, tiny_url, monkeypatch):
