@@ -73,10 +73,11 @@ def live_attempts(store: RunStore) -> set[str]:
     live = set()
     for text in texts.values():
         try:
-            keys = json.loads(text).get("keys") or {}
+            keys = json.loads(text).get("keys")
         except (ValueError, AttributeError):
             continue  # not a marker's JSON (it names nothing a reader trusts)
-        live.update(attempt_prefix(key) for key in keys.values() if isinstance(key, str))
+        if isinstance(keys, dict):
+            live.update(attempt_prefix(key) for key in keys.values() if isinstance(key, str))
     return live
 
 
