@@ -246,6 +246,9 @@ def test_sigkill_mid_upload_leaves_nothing_visible_and_gc_removes_the_dead_attem
 
     render = next(s for s in run_state(RunFolder.open(tiny_url)).stages if s.stage == "render")
     assert unit not in render.done and len(render.done) < len(committed)
+    status = invoke("status", tiny_url)
+    row = next(line for line in status.output.splitlines() if line.strip("│ ").startswith("render "))
+    assert [cell.strip() for cell in row.split("│")[2:4]] == [str(len(committed)), str(len(committed) - 1)], status.output
     query = invoke("query", tiny_url, "select count(*) as n from videos", "--format", "json")
     assert json.loads(query.output)[0]["n"] == len(render.done), query.output
 
