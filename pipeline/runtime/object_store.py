@@ -16,7 +16,6 @@ no option holding one is ever taken from the command line or written anywhere by
 
 from __future__ import annotations
 
-import errno
 import hashlib
 import logging
 import os
@@ -307,11 +306,15 @@ def _modified(info: dict[str, Any]) -> float:
 
 
 def _lost_a_condition(error: OSError) -> bool:
-    """True for a failed precondition: s3fs raises FileExistsError for `If-None-Match`, OSError(EINVAL) for
-    `If-Match` (412), and S3 answers 409 ConditionalRequestConflict to a write racing another conditional one."""
-    text = str(error)
-    return (isinstance(error, FileExistsError) or error.errno == errno.EINVAL or "PreconditionFailed" in text
-            or "ConditionalRequestConflict" in text)
+    """True for a failed precondition: s3fs raises FileExistsError for `If-None-Match`, and an OSError caused by
+    botocore's 412 PreconditionFailed for `If-Match`; S3 answers 409 ConditionalRequestConflict to a
+    conditional write racing another one. (s3fs's errno, EINVAL, is shared by many unrelated errors.)"""
+    if isinstance(error, FileExistsError):
+        return True
+    response = getattr(error.__cause__, "response", None) or {}
+    code = response.get("Error", {}).get("Code")
+    status = response.get("ResponseMetadata", {}).get("HTTPStatusCode")
+    return code in ("PreconditionFailed", "ConditionalRequestConflict") or status in (409, 412)
 
 
 async def _s3_get(fs: Any, bucket: str, name: str) -> StoredObject:

@@ -317,3 +317,18 @@ def test_gc_on_local_disk_removes_staging_folders_of_dead_attempts(tmp_path):
     report = collect_garbage(RunFolder.open(run))
     assert report.staging == dry.staging and report.kept_alive == [alive_folder.relative_to(run).as_posix()] and report.objects == 0
     assert not dead_folder.exists() and alive_folder.exists()
+
+
+@pytest.mark.parametrize("where", ["s3", "memory"])
+def test_conditional_writes_refuse_a_writer_that_read_an_older_version(s3, where):
+    store = RunStore(s3.url("runs/conditions") if where == "s3" else "memory://lockgc/conditions")
+    first = store.create_object("thing.json", b"one")
+    assert first is not None and store.create_object("thing.json", b"two") is None  # If-None-Match: *
+    found = store.read_object("thing.json")
+    assert found.data == b"one" and found.tag == first and found.modified > time.time() - 600
+    second = store.replace_object("thing.json", b"three", first)
+    assert second not in (None, first)
+    assert store.replace_object("thing.json", b"four", first) is None  # If-Match on a tag already replaced
+    assert not store.remove_object("thing.json", first) and store.read_object("thing.json").data == b"three"
+    assert store.remove_object("thing.json", second) and store.read_object("thing.json") is None
+    assert store.replace_object("thing.json", b"five", second) is None
