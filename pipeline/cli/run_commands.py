@@ -1,4 +1,4 @@
-"""Commands that run and inspect jobs: demo, submit, rerun, status, query, stats, logs, schemas."""
+"""Commands that run and inspect jobs: demo, submit, rerun, status, query, stats, logs, gc, schemas."""
 
 from __future__ import annotations
 
@@ -51,6 +51,7 @@ def register(app: typer.Typer) -> None:
     app.command("query")(query_command)
     app.command()(stats)
     app.command()(logs)
+    app.command("gc")(gc_command)
     app.command()(schemas)
 
 
@@ -319,6 +320,30 @@ def _unit_logs(logs_folder: Path, unit: str, stage: str | None) -> list[Path]:
     wanted = f"{unit}.log"
     return sorted(entry for folder in sorted(logs_folder.iterdir()) if folder.is_dir() and stage in (None, folder.name)
                   for entry in folder.iterdir() if entry.name == wanted and entry.is_file())
+
+
+def gc_command(
+    run_dir: Annotated[Path, typer.Argument(help="run folder (a path or an object-store URL)")],
+    dry_run: Annotated[bool, typer.Option("--dry-run", help="only count what would be deleted")] = False,
+) -> None:
+    """Delete what dead attempts left (objects under `_attempts/` no marker names, old staging folders), under the run lock."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    from pipeline.runtime.garbage import GarbageCollectionError, collect_garbage
+
+    try:
+        run = RunFolder.open(run_dir)
+        with Progress(TextColumn("gc"), BarColumn(), MofNCompleteColumn(), console=console, transient=True) as progress:
+            task = progress.add_task("gc", total=None)
+            report = collect_garbage(run, dry_run, lambda done, total: progress.update(task, completed=done, total=total))
+    except (*USAGE_ERRORS, GarbageCollectionError) as error:
+        fail(str(error))
+    verb = "would delete" if dry_run else "deleted"
+    console.print(f"{run.location}: {verb} {report.objects} objects ({report.bytes / 2**20:.1f} MiB) of "
+                  f"{len(report.attempts)} dead attempts and {len(report.staging)} staging folders"
+                  + (f"; kept {len(report.kept_alive)} attempts of processes still running here"
+                     if report.kept_alive else ""),
+                  soft_wrap=True)
 
 
 def schemas(

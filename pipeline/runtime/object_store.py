@@ -21,11 +21,13 @@ import logging
 import os
 import re
 import socket
+import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import fsspec
+import fsspec.asyn
 from fsspec.implementations.memory import MemoryFileSystem
 
 log = logging.getLogger(__name__)
@@ -173,6 +175,157 @@ class RunStore:
         start = len(self.key("")) if self.prefix else 0
         return {k[start:].lstrip("/"): v.decode("utf-8") for k, v in fetched.items() if isinstance(v, bytes)}
 
+    # ------------------------------------------------ conditional writes (the run lock) and listing (gc)
+    def create_object(self, relative: str, data: bytes) -> str | None:
+        """Write `relative` only when no object is there (S3 `If-None-Match: *`); its tag, or None when one is.
+
+        On S3 the store checks the condition, so of two writers racing on one key exactly one wins.
+        """
+        key = self.key(relative)
+        if not _is_s3(self.fs):
+            with _EMULATED_CONDITIONS:
+                if self.fs.exists(key):
+                    return None
+                self.fs.pipe_file(key, data)
+                return _content_tag(data)
+        try:
+            response = self.fs.pipe_file(key, data, mode="create")
+        except OSError as error:
+            if _lost_a_condition(error):
+                return None
+            raise
+        return str(response["ETag"])
+
+    def read_object(self, relative: str) -> StoredObject | None:
+        """The object's bytes, tag and modification time from one GET (they belong together); None if absent."""
+        key = self.key(relative)
+        if not _is_s3(self.fs):
+            with _EMULATED_CONDITIONS:
+                try:
+                    data = self.fs.cat_file(key)
+                except FileNotFoundError:
+                    return None
+                return StoredObject(data, _content_tag(data), _modified(self.fs.info(key)))
+        bucket, name, _ = self.fs.split_path(key)
+        try:
+            return fsspec.asyn.sync(self.fs.loop, _s3_get, self.fs, bucket, name)
+        except FileNotFoundError:
+            return None
+
+    def replace_object(self, relative: str, data: bytes, tag: str) -> str | None:
+        """Overwrite `relative` only while its tag is still `tag` (S3 `If-Match`); the new tag, or None when
+        another writer changed or removed it since `tag` was read."""
+        key = self.key(relative)
+        if not _is_s3(self.fs):
+            with _EMULATED_CONDITIONS:
+                if self._emulated_tag(key) != tag:
+                    return None
+                self.fs.pipe_file(key, data)
+                return _content_tag(data)
+        try:
+            response = self.fs.pipe_file(key, data, IfMatch=tag)
+        except OSError as error:
+            if isinstance(error, FileNotFoundError) or _lost_a_condition(error):
+                return None
+            raise
+        return str(response["ETag"])
+
+    def remove_object(self, relative: str, tag: str) -> bool:
+        """Delete `relative` only while its tag is still `tag` (S3 `If-Match` on DELETE); False otherwise."""
+        key = self.key(relative)
+        if not _is_s3(self.fs):
+            with _EMULATED_CONDITIONS:
+                if self._emulated_tag(key) != tag:
+                    return False
+                self.fs.rm_file(key)
+                return True
+        bucket, name, _ = self.fs.split_path(key)
+        try:
+            self.fs.call_s3("delete_object", Bucket=bucket, Key=name, IfMatch=tag)
+        except OSError as error:
+            if isinstance(error, FileNotFoundError) or _lost_a_condition(error):
+                return False
+            raise
+        finally:
+            self.fs.invalidate_cache(key)
+        return True
+
+    def _emulated_tag(self, key: str) -> str | None:
+        """The content tag of `key` on a store without conditions (None when absent); hold _EMULATED_CONDITIONS."""
+        try:
+            return _content_tag(self.fs.cat_file(key))
+        except FileNotFoundError:
+            return None
+
+    def list_objects(self, folder: str) -> dict[str, int]:
+        """Relative key -> size of every object below `folder` (a listing: for gc, never a hot path)."""
+        try:
+            found = self.fs.find(self.key(folder), detail=True)
+        except FileNotFoundError:
+            return {}
+        start = len(self.key("")) if self.prefix else 0
+        return {name[start:].lstrip("/"): int(entry.get("size") or 0) for name, entry in found.items()
+                if entry.get("type") != "directory"}
+
+    def delete_objects(self, relatives: list[str]) -> None:
+        """Delete many keys in one batched call (S3 DeleteObjects takes up to 1000 per request); raises on failure."""
+        if relatives:
+            self.fs.rm([self.key(relative) for relative in relatives])
+
 
 def _one_line(error: BaseException) -> str:
     return " ".join(str(error).split())[:200] or type(error).__name__
+
+
+class StoredObject(NamedTuple):
+    """An object's bytes, the version tag conditional writes compare (S3: its ETag) and its age."""
+
+    data: bytes
+    tag: str
+    modified: float  # seconds since the epoch, by the store's clock
+
+
+# A store without native conditions (memory://, whose objects live in this process): compare-and-swap under
+# one process-wide lock is then exactly atomic. (Other stores would keep a window between read and write;
+# only s3:// and memory:// run folders are supported for the lock's guarantees, see the README.)
+_EMULATED_CONDITIONS = threading.Lock()
+
+
+def _is_s3(fs: fsspec.AbstractFileSystem) -> bool:
+    protocols = (fs.protocol,) if isinstance(fs.protocol, str) else fs.protocol
+    return "s3" in protocols
+
+
+def _content_tag(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _modified(info: dict[str, Any]) -> float:
+    stamp = info.get("LastModified") or info.get("created") or info.get("mtime") or 0.0
+    return stamp.timestamp() if hasattr(stamp, "timestamp") else float(stamp)
+
+
+def _lost_a_condition(error: OSError) -> bool:
+    """True for a failed precondition: s3fs raises FileExistsError for `If-None-Match`, and an OSError caused by
+    botocore's 412 PreconditionFailed for `If-Match`; S3 answers 409 ConditionalRequestConflict to a
+    conditional write racing another one. (s3fs's errno, EINVAL, is shared by many unrelated errors.)"""
+    if isinstance(error, FileExistsError):
+        return True
+    response = getattr(error.__cause__, "response", None) or {}
+    code = response.get("Error", {}).get("Code")
+    status = response.get("ResponseMetadata", {}).get("HTTPStatusCode")
+    return code in ("PreconditionFailed", "ConditionalRequestConflict") or status in (409, 412)
+
+
+async def _s3_get(fs: Any, bucket: str, name: str) -> StoredObject:
+    """One GET on s3fs's event loop: body, ETag and LastModified of the same version of the object."""
+    from s3fs.errors import translate_boto_error
+    from botocore.exceptions import ClientError
+
+    try:
+        response = await fs._call_s3("get_object", Bucket=bucket, Key=name)
+    except ClientError as error:
+        raise translate_boto_error(error) from None
+    async with response["Body"] as body:
+        data = await body.read()
+    return StoredObject(data, str(response["ETag"]), response["LastModified"].timestamp())

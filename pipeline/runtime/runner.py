@@ -9,7 +9,7 @@ from typing import Callable
 from pipeline.config import Job
 from pipeline.runtime.executor import ProgressCallback, StageOrderError, StagePlan, StageReport, run_stage
 from pipeline.runtime.executors import ExecutorName
-from pipeline.runtime.lock import RunLock
+from pipeline.runtime.lock import run_lock
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.stages import JOB_STAGES, make_stage
 
@@ -39,7 +39,7 @@ def submit(job: Job, run_dir: str | Path, stages: list[str] | None = None, addre
            observer: Observer | None = None, executor: ExecutorName = "auto") -> JobReport:
     """Create (or reopen) the run folder for `job` and run its stages; only stale or damaged units run."""
     run = RunFolder.prepare(run_dir)
-    with RunLock(run.root):
+    with run_lock(run):
         run.save_job(job)
         return _run(job, run, stages or list(JOB_STAGES), False, address, observer, executor)
 
@@ -48,7 +48,7 @@ def rerun(run_dir: str | Path, stage: str, force: bool = False, address: str | N
           observer: Observer | None = None, executor: ExecutorName = "auto") -> JobReport:
     """Run one stage of an existing run again: failed, missing, stale and damaged units, or all with `force`."""
     run = RunFolder.open(run_dir)
-    with RunLock(run.root):
+    with run_lock(run):
         return _run(run.job(), run, [stage], force, address, observer, executor)
 
 
