@@ -31,7 +31,7 @@ import fsspec
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pipeline.runtime.markers import STATE, Marker, OutputFile, parse_marker
+from pipeline.runtime.markers import STATE, ColumnarManifest, Marker, parse_marker
 
 log = logging.getLogger(__name__)
 
@@ -244,19 +244,24 @@ def _decode(data: bytes) -> dict[str, tuple[str, Marker | None]]:
     names = table.column("name").to_pylist()
     identities = table.column("identity").to_pylist()
     headers = table.column("header").to_pylist()
-    manifest = [table.column(c).combine_chunks() for c in ("file_path", "file_size", "file_crc32c")]
-    paths, sizes, crcs = (column.flatten().to_pylist() for column in manifest)
-    offsets = manifest[0].offsets.to_pylist()
-    rows = {}
+    paths, sizes, crcs = (table.column(c).combine_chunks() for c in ("file_path", "file_size", "file_crc32c"))
+    if not (paths.offsets.equals(sizes.offsets) and paths.offsets.equals(crcs.offsets)):
+        raise ValueError("the manifest columns disagree in length")
+    offsets = paths.offsets.to_pylist()
+    base = offsets[0] if offsets else 0
+    paths, sizes, crcs = paths.flatten(), sizes.flatten(), crcs.flatten()
+    rows: dict[str, tuple[str, Marker | None]] = {}
     for index, (name, identity, header) in enumerate(zip(names, identities, headers)):
         if header is None:
             rows[name] = (identity, None)
             continue
-        start, end = offsets[index], offsets[index + 1]
-        fields = json.loads(header)
-        # The dataclass's own constructor, by map: measured faster than any hand-made shortcut.
-        fields["files"] = list(map(OutputFile, paths[start:end], sizes[start:end], crcs[start:end]))
-        rows[name] = (identity, Marker(**fields))
+        start, length = offsets[index] - base, offsets[index + 1] - offsets[index]
+        marker = Marker(**json.loads(header))
+        # The manifest stays columnar until someone asks for `files` (status needs only paths and sizes).
+        del marker.files
+        marker.__dict__["_manifest"] = ColumnarManifest(paths.slice(start, length), sizes.slice(start, length),
+                                                        crcs.slice(start, length))
+        rows[name] = (identity, marker)
     return rows
 
 

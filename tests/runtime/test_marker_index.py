@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 from dataclasses import replace
 from pathlib import Path
 
@@ -173,3 +174,18 @@ def test_unit_damage_in_threads_equals_one_thread(tmp_path, monkeypatch):
     monkeypatch.setattr(os, "cpu_count", lambda: 4)
     assert unit_damage(tmp_path, found) == one and list(unit_damage(tmp_path, found)) == list(one)
     assert sorted(set(found) - set(one)) == ["u07", "u11", "u19", "u23", "u31", "u35"]
+
+
+def test_a_marker_from_the_index_checks_pickles_and_compares_like_one_from_its_file(tmp_path):
+    marker = a_marker("u0", files=5)
+    for entry in marker.files[1:]:
+        (tmp_path / entry.path).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / entry.path).write_bytes(b"x" * (entry.size if entry.size != 6 else 2))
+    write_marker(tmp_path, marker)
+    write_index(LocalMarkerFolder(tmp_path, STAGE))
+    indexed = stage_markers(tmp_path, STAGE)["u0"]
+    assert "_manifest" in indexed.__dict__  # still columnar: the check below must not need `files`
+    assert check_files(indexed, tmp_path) == check_files(marker, tmp_path) != []
+    assert "_manifest" in indexed.__dict__
+    copy = pickle.loads(pickle.dumps(indexed))
+    assert copy == marker and copy.files == marker.files and marker_text(indexed) == marker_text(marker)
