@@ -23,7 +23,7 @@ import io
 import json
 import logging
 import os
-from dataclasses import asdict
+from dataclasses import fields
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -276,12 +276,19 @@ def _encode(rows: dict[str, tuple[str, Marker | None]]) -> bytes:
             for key in ("header", "file_path", "file_size", "file_crc32c"):
                 columns[key].append(None)
             continue
-        header = asdict(marker)
-        del header["files"]
+        # Field by field, not `asdict`: that would make the `OutputFile`s of a marker still columnar.
+        header = {f.name: getattr(marker, f.name) for f in fields(marker) if f.name != "files"}
         columns["header"].append(json.dumps(header, sort_keys=True))
-        columns["file_path"].append([f.path for f in marker.files])
-        columns["file_size"].append([f.size for f in marker.files])
-        columns["file_crc32c"].append([f.crc32c for f in marker.files])
+        for key, values in zip(("file_path", "file_size", "file_crc32c"), _manifest_lists(marker)):
+            columns[key].append(values)
     sink = io.BytesIO()
     pq.write_table(pa.table(columns, schema=INDEX_SCHEMA), sink, compression="zstd")
     return sink.getvalue()
+
+
+def _manifest_lists(marker: Marker) -> tuple[list[str], list[int], list[str]]:
+    """The marker's paths, sizes and checksums as three lists (from its columns when it still has them)."""
+    manifest = marker.__dict__.get("_manifest")
+    if isinstance(manifest, ColumnarManifest):
+        return manifest.paths.to_pylist(), manifest.sizes.to_pylist(), manifest.crcs.to_pylist()
+    return [f.path for f in marker.files], [f.size for f in marker.files], [f.crc32c for f in marker.files]

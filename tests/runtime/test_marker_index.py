@@ -189,3 +189,14 @@ def test_a_marker_from_the_index_checks_pickles_and_compares_like_one_from_its_f
     assert "_manifest" in indexed.__dict__
     copy = pickle.loads(pickle.dumps(indexed))
     assert copy == marker and copy.files == marker.files and marker_text(indexed) == marker_text(marker)
+
+
+def test_an_index_rewritten_from_an_index_keeps_every_marker(root, monkeypatch):
+    monkeypatch.setattr(marker_index, "REFRESH_AFTER", 1)
+    write_index(LocalMarkerFolder(root, STAGE))
+    write_marker(root, a_marker("u7", files=2))  # one stale row: the reader rewrites from the columnar rows
+    before = (root / "_state" / STAGE / INDEX_NAME).read_bytes()
+    assert stage_markers(root, STAGE) == every_json(root, STAGE)
+    assert (root / "_state" / STAGE / INDEX_NAME).read_bytes() != before
+    CountingFolder.read = ["sentinel"]
+    assert load_markers(CountingFolder(root, STAGE)) == every_json(root, STAGE) and CountingFolder.read == []
