@@ -159,7 +159,7 @@ def test_check_files_finds_missing_resized_misplaced_and_recorded_damage(tmp_pat
         (misplaced.path, "is missing"), (marker.files[3].path, "is unreadable Parquet")]
 
 
-def test_unit_damage_in_threads_equals_one_thread(tmp_path, monkeypatch):
+def test_unit_damage_names_exactly_the_units_with_a_missing_or_resized_file(tmp_path):
     found = {}
     for index in range(40):
         marker = a_marker(f"u{index:02d}", files=3)
@@ -167,13 +167,9 @@ def test_unit_damage_in_threads_equals_one_thread(tmp_path, monkeypatch):
             (tmp_path / entry.path).parent.mkdir(parents=True, exist_ok=True)
             (tmp_path / entry.path).write_bytes(b"x" * (entry.size if index % 3 else 1))  # 0 mod 3: resized
         found[marker.unit] = marker
-    monkeypatch.setattr(markers, "_THREADED_FROM_FILES", 10**9)
-    one = unit_damage(tmp_path, found)
-    monkeypatch.setattr(markers, "_THREADED_FROM_FILES", 0)
-    monkeypatch.setattr(markers, "_CHECK_THREADS", 4)
-    monkeypatch.setattr(os, "cpu_count", lambda: 4)
-    assert unit_damage(tmp_path, found) == one and list(unit_damage(tmp_path, found)) == list(one)
-    assert sorted(set(found) - set(one)) == ["u07", "u11", "u19", "u23", "u31", "u35"]
+    damaged = unit_damage(tmp_path, found)
+    assert sorted(set(found) - set(damaged)) == ["u07", "u11", "u19", "u23", "u31", "u35"]
+    assert damaged["u05"][0].problem == "is missing" and "has 1 bytes" in damaged["u03"][0].problem
 
 
 def test_a_marker_from_the_index_checks_pickles_and_compares_like_one_from_its_file(tmp_path):
