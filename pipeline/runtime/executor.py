@@ -20,6 +20,7 @@ import pyarrow as pa
 
 from pipeline.runtime.attempt import execute_unit
 from pipeline.runtime.executors import ExecutorName, ProgressCallback, run_units
+from pipeline.runtime.marker_index import index_stage
 from pipeline.runtime.markers import Damage, code_version, unit_damage
 from pipeline.runtime.run_folder import STAGING, Marker, RunFolder
 from pipeline.runtime.stage import Stage, Unit
@@ -176,5 +177,6 @@ def run_stage(stage: Stage, run: RunFolder, force: bool = False, address: str | 
     statuses = {unit: outcome for (_, unit), outcome in previous.items() if unit in {u.id for u in plan.units}}
     statuses.update({o.unit: o for o in outcomes})
     write_status(run.root, stage.name, statuses)
+    index_stage(run.root, stage.name)  # one file of all the stage's markers, for the next reader
     shutil.rmtree(run.root / STAGING / stage.name, ignore_errors=True)
     return StageReport(stage.name, len(plan.units), len(plan.up_to_date), outcomes, time.perf_counter() - started)
