@@ -160,7 +160,7 @@ def planned_poses(frames: int, folder: Path) -> tuple[Scene, np.ndarray, str]:
         for unit in stage.units(run):
             run_unit_locally(stage, run, unit)
     rows = run.read("trajectories").to_pylist()
-    poses = np.concatenate([read_poses(run, r["embodiment"], r["video_name"], r["frames"]) for r in rows])
+    poses = np.concatenate([read_poses(run, r) for r in rows])
     scene = RgbdRenderer(job).load_scene(run, rows[0]["scene_id"])
     return scene, poses, f"{len(rows)} planned trajectories at 1.0 m ({len(poses)} poses)"
 

@@ -194,7 +194,7 @@ def status(
         for unit, problems in sorted(stage.damaged.items()):
             more = f" (and {len(problems) - 1} more files)" if len(problems) > 1 else ""
             console.print(f"[red]{stage.stage}/{unit}[/] damaged: {problems[0].path} {problems[0].problem}{more}; "
-                          f"`mvpd rerun {run_dir} --stage {stage.stage}` writes it again", soft_wrap=True)
+                          f"`mvpd rerun {run.location} --stage {stage.stage}` writes it again", soft_wrap=True)
     for damage in state.status_damage:
         console.print(f"[yellow]status table of stage {damage.unit}[/]: {damage.path} {damage.problem}; its outcomes "
                       "were rebuilt from markers (failed units show as pending) until the stage runs again",

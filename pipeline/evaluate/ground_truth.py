@@ -207,11 +207,14 @@ def run_videos(run_root: Path, embodiment: str | None = None) -> list[VideoSpec]
     if embodiment is not None and embodiment not in embodiments:
         raise GroundTruthError(f"{run_root}: no videos of embodiment {embodiment!r}; the run has {', '.join(embodiments)}")
     chosen = embodiment or embodiments[0]
+    from pipeline.io.reader import video_locations
+
+    locations = video_locations(run_root)  # local paths, or URLs on the run's object store
     specs = []
     for row in sorted((r for r in table if r["embodiment"] == chosen), key=lambda r: r["video_name"]):
         frames = int(row["frames"])
         specs.append(VideoSpec(key=f"{chosen}/{row['video_name']}", video_name=row["video_name"], labels=[""] * frames,
-                               stems=[f"{t:010d}" for t in range(frames)], store=str(run_root / row["store_path"]),
+                               stems=[f"{t:010d}" for t in range(frames)], store=locations.get((chosen, row["video_name"]), str(run_root / row["store_path"])),
                                embodiment=chosen))
     return specs
 

@@ -19,7 +19,9 @@ import numpy as np
 
 from pipeline.io.zarr_video import open_video
 from pipeline.lazy_import import lazy_module
-from pipeline.runtime.run_folder import is_plain_name, run_root
+from pipeline.runtime.markers import Marker, check_files, stage_markers, stages_writing, unit_marker
+from pipeline.runtime.object_store import store_of
+from pipeline.runtime.run_folder import RunFolder, is_plain_name, run_root
 
 zarr = lazy_module("zarr")  # loaded on first use (see pipeline.io.zarr_video)
 
@@ -112,7 +114,7 @@ def _resolve_embodiment(run: Any, name: str, embodiment: str | None) -> str:
     is looked up, so `../x`, `e/v` or an absolute name finds nothing and nothing outside the run is touched."""
     root = run_root(run)
     hint = f"`mvpd query {root} \"select embodiment, video_name from videos\"` lists them"
-    found = _video_embodiments(root / "videos", name, embodiment)
+    found = _video_embodiments(root, name, embodiment)
     if embodiment is not None:
         if embodiment not in found:
             raise VideoNotFoundError(f"{root}: no video {name!r} of embodiment {embodiment!r}; {hint}")
@@ -124,42 +126,81 @@ def _resolve_embodiment(run: Any, name: str, embodiment: str | None) -> str:
     return found[0]
 
 
-def _video_embodiments(videos: Path, name: str, embodiment: str | None) -> list[str]:
-    """Embodiments (all, or just `embodiment`) holding a store for video `name`: one stat per embodiment, no
-    listing of the videos (a run holds 18,000); names that are not plain never reach the file system."""
-    if not (is_plain_name(name) and (embodiment is None or is_plain_name(embodiment))) or not videos.is_dir():
+def _video_embodiments(root: Path, name: str, embodiment: str | None) -> list[str]:
+    """Embodiments (all, or just `embodiment`) holding a store for video `name`, without listing the videos
+    (a run holds 18,000): on local disk one stat per embodiment; on object storage the committing unit's
+    marker (a GET each) of the job's embodiments. Names that are not plain never reach a file system."""
+    if not (is_plain_name(name) and (embodiment is None or is_plain_name(embodiment))):
+        return []
+    if store_of(root) is not None:
+        candidates = [embodiment] if embodiment is not None else [e.name for e in RunFolder(root).job().embodiments]
+        return [e for e in candidates if _video_marker(root, e, name) is not None]
+    videos = root / "videos"
+    if not videos.is_dir():
         return []
     candidates = [embodiment] if embodiment is not None else sorted(f.name for f in videos.iterdir() if f.is_dir())
     return [e for e in candidates if (videos / e / f"{name}.zarr").is_dir()]
 
 
-def _check_committed(root: Path, embodiment: str, name: str) -> None:
-    """Refuse a video whose committing unit's files are damaged (a lost shard would read as zeros)."""
-    from pipeline.runtime.markers import check_files, marker_path, read_marker, stages_writing
-
+def _video_marker(root: Path, embodiment: str, name: str) -> tuple[str, Marker] | None:
+    """The stage and marker of the unit that committed video `embodiment/name` (render's unit ids, import's)."""
     store = f"videos/{embodiment}/{name}.zarr"
     for stage in stages_writing(root, "videos"):
-        for unit in (f"{embodiment}.{name}", name):  # render's unit ids, import's
-            marker = read_marker(marker_path(root, stage, unit))
+        for unit in (f"{embodiment}.{name}", name):
+            marker = unit_marker(root, stage, unit)
             if marker is not None and store in marker.outputs:
-                damage = check_files(marker, root)
-                if damage:
-                    raise VideoDamagedError(f"{root}: video {embodiment}/{name} is damaged ({damage[0].line()}); "
-                                            f"`mvpd status {root}` lists damage, `mvpd rerun {root} --stage {stage}` repairs it")
-                return
+                return stage, marker
+    return None
+
+
+def video_locations(run: Any) -> dict[tuple[str, str], str]:
+    """(embodiment, video_name) -> where each video's Zarr store is read: on local disk its `store_path`
+    in the run; on object storage its URL, from the markers of the stages that wrote videos (the `keys`
+    of its files; no listing of the bucket)."""
+    from pipeline.io.tables import read_dataset
+
+    root = run_root(run)
+    if store_of(root) is None:
+        table = read_dataset(root, "videos", warn=False).select(["embodiment", "video_name", "store_path"]).to_pylist()
+        return {(r["embodiment"], r["video_name"]): str(root / r["store_path"]) for r in table}
+    folder = RunFolder(root)
+    found = {}
+    for stage in stages_writing(root, "videos"):
+        for marker in stage_markers(root, stage).values():
+            for output in marker.outputs:
+                parts = output.split("/")
+                if len(parts) == 3 and parts[0] == "videos" and parts[2].endswith(".zarr"):
+                    found[(parts[1], parts[2][: -len(".zarr")])] = folder.committed_location(marker, output)
+    return found
+
+
+def _committed_store(root: Path, embodiment: str, name: str) -> str:
+    """Where video `embodiment/name` is read (its local path or its URL on the store); refuses a video
+    whose committing unit's files are damaged (a lost shard would read as zeros)."""
+    relative = f"videos/{embodiment}/{name}.zarr"
+    found = _video_marker(root, embodiment, name)
+    if found is None:
+        return str(root / relative)  # a store written outside the commit protocol (an old run): as it is
+    stage, marker = found
+    damage = check_files(marker, root)
+    if damage:
+        raise VideoDamagedError(f"{root}: video {embodiment}/{name} is damaged ({damage[0].line()}); "
+                                f"`mvpd status {root}` lists damage, `mvpd rerun {root} --stage {stage}` repairs it")
+    return RunFolder(root).committed_location(marker, relative)
 
 
 def _object_names(root: Path, scene_id: str) -> tuple[dict[int, int], dict[int, str]]:
     """Categories and raw names of a scene's objects from the run's `objects` table ({} without it)."""
-    folder = root / "objects"
-    if not folder.is_dir():
+    import pyarrow as pa
+
+    from pipeline.io.tables import dataset_parts, read_part, spec
+
+    schema, store = spec("objects").schema, store_of(root)
+    tables = [read_part(part, schema, store, filters=[("scene_id", "=", scene_id)],
+                        columns=["object_id", "mpcat40_index", "raw_name"]) for part in dataset_parts(root, "objects")]
+    if not tables:
         return {}, {}
-    import pyarrow.parquet as pq
-
-    from pipeline.io.tables import spec
-
-    table = pq.read_table(folder, schema=spec("objects").schema, filters=[("scene_id", "=", scene_id)],
-                          columns=["object_id", "mpcat40_index", "raw_name"])
+    table = pa.concat_tables(tables)
     ids = table.column("object_id").to_pylist()
     return (dict(zip(ids, table.column("mpcat40_index").to_pylist())),
             dict(zip(ids, table.column("raw_name").to_pylist())))
@@ -175,8 +216,7 @@ def load_video(run: Any, name: str, embodiment: str | None = None, split: str | 
     if accepted is not None and (embodiment, name) not in accepted:
         raise VideoNotFoundError(f"{root}: video {embodiment}/{name} is not an accepted video of split {split!r} "
                                  f"(`mvpd query {root} \"select * from splits where video_name = '{name}'\"` says why)")
-    _check_committed(root, embodiment, name)
-    video = open_video(root / "videos" / embodiment / f"{name}.zarr")
+    video = open_video(_committed_store(root, embodiment, name))
     attributes = video.attrs
     categories = {int(k): int(v) for k, v in attributes.get("object_categories", {}).items()}
     table_categories, raw_names = _object_names(root, str(attributes.get("scene_id", "")))

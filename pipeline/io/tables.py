@@ -8,12 +8,14 @@ from pipeline.runtime.tables import (  # noqa: F401 - re-exported names
     damaged_parts,
     dataset_parts,
     read_dataset,
+    read_part,
     register,
     spec,
     to_table,
     trusted_parts,
+    trusted_parts_of,
     write_part,
 )
 
-__all__ = ["TableSpec", "all_tables", "column", "damage_line", "damaged_parts", "dataset_parts", "read_dataset",
-           "register", "spec", "to_table", "trusted_parts", "write_part"]
+__all__ = ["TableSpec", "all_tables", "column", "damage_line", "damaged_parts", "dataset_parts", "read_dataset", "read_part",
+           "register", "spec", "to_table", "trusted_parts", "trusted_parts_of", "write_part"]

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.lazy_import import lazy_module
+from pipeline.runtime.object_store import remote_url
 
 zarr = lazy_module("zarr")  # loaded on first use: commands that never open a video start faster
 
@@ -100,7 +101,7 @@ class VideoWriter:
 class Video:
     """A stored video opened lazily: arrays are Zarr arrays (index them to read)."""
 
-    path: Path
+    path: Path | str  # a local path, or a URL on an object store
     group: zarr.Group
 
     @property
@@ -131,9 +132,26 @@ class Video:
         return dict(self.group.attrs["intrinsics"])
 
 
-def open_video(path: str | Path) -> Video:
-    """Open a stored video read-only."""
-    path = Path(path)
-    if not (path / "zarr.json").is_file():
-        raise FileNotFoundError(f"{path}: not a Zarr video store (no zarr.json); was the render unit committed?")
-    return Video(path, zarr.open_group(str(path), mode="r"))
+def open_video(location: str | Path) -> Video:
+    """Open a stored video read-only: a local path, or the URL of a store on an object store (read in place
+    through fsspec; what `RunFolder.committed_location` gives for a remote run)."""
+    if remote_url(location) is None:
+        path = Path(location)
+        if not (path / "zarr.json").is_file():
+            raise FileNotFoundError(f"{path}: not a Zarr video store (no zarr.json); was the render unit committed?")
+        return Video(path, zarr.open_group(str(path), mode="r"))
+    try:
+        return Video(str(location), zarr.open_group(_read_only_store(str(location)), mode="r"))
+    except (FileNotFoundError, zarr.errors.GroupNotFoundError):
+        raise FileNotFoundError(f"{location}: not a Zarr video store (no zarr.json); was the render unit committed?") from None
+
+
+def _read_only_store(url: str) -> "zarr.storage.FsspecStore":
+    """A read-only Zarr store on an object-store URL, through the process's own (cached, synchronous) fsspec
+    client in a thread wrapper: zarr's `from_url` would open a second client on its own event loop, whose
+    HTTP session is never closed (aiohttp warns "Unclosed client session" when it is collected)."""
+    import fsspec
+    from fsspec.implementations.asyn_wrapper import AsyncFileSystemWrapper
+
+    fs, path = fsspec.core.url_to_fs(url)
+    return zarr.storage.FsspecStore(AsyncFileSystemWrapper(fs, asynchronous=True), path=path, read_only=True)

@@ -28,8 +28,8 @@ from pipeline.evaluate.predictions import RLE_FOLDER
 from pipeline.models.fastspam import FastSpam, FastSpamOptions
 from pipeline.models.segmenter import SEGMENTERS, FrameInput, ModelError, Segmenter, make_segmenter
 from pipeline.runtime.executor import ProgressCallback, StagePlan, StageReport, run_stage
-from pipeline.runtime.lock import RunLock
-from pipeline.runtime.run_folder import JOB_FILE, RunFolder, atomic_write_text
+from pipeline.runtime.lock import run_lock
+from pipeline.runtime.run_folder import JOB_FILE, RunFolder, atomic_write_text, run_root
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 
 MANIFEST = "prediction.yaml"
@@ -124,14 +124,17 @@ class SegmentationPredictor(Stage):
         self.inputs = inputs
 
     def units(self, run: RunFolder) -> list[Unit]:
+        from pipeline.io.reader import video_locations
         from pipeline.io.tables import read_dataset
 
         wanted = set(self.inputs.videos) if self.inputs.videos is not None else None
+        source = run_root(self.inputs.source_run)
+        locations = video_locations(source)  # local paths, or URLs on the source run's object store
         units = []
-        for row in read_dataset(Path(self.inputs.source_run), "videos").to_pylist():
+        for row in read_dataset(source, "videos").to_pylist():
             if row["embodiment"] != self.inputs.embodiment or (wanted is not None and row["video_name"] not in wanted):
                 continue
-            store = str(Path(self.inputs.source_run) / row["store_path"])
+            store = locations.get((row["embodiment"], row["video_name"]), str(source / row["store_path"]))
             units.append(Unit(f"{row['embodiment']}.{row['video_name']}",
                               {"video": row["video_name"], "store": store, "frames": int(row["frames"])}))
         return sorted(units, key=lambda u: u.id)
@@ -262,6 +265,6 @@ def predict_run(run_dir: str | Path, out: str | Path, model: ModelConfig, embodi
     target = RunFolder.create(out, job)
     atomic_write_text(out / MANIFEST, yaml.safe_dump({"identity": identity, "identity_hash": config_hash(identity)},
                                                     sort_keys=True))
-    with RunLock(target.root):
+    with run_lock(target):
         return run_stage(stage, target, force=force, address=address, on_start=on_start, on_unit=on_unit)
 

@@ -13,11 +13,11 @@ import time
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
-import pyarrow.parquet as pq
+import pyarrow as pa
 
 from pipeline.config import Embodiment, Job
 from pipeline.io.segments import frame_segments
-from pipeline.io.tables import spec, to_table
+from pipeline.io.tables import dataset_parts, read_part, spec, to_table
 from pipeline.io.zarr_video import VideoWriter
 from pipeline.plan.poses import pose_matrices
 from pipeline.render.lighting import SurfaceColors, job_exposure
@@ -86,7 +86,7 @@ class RgbdRenderer(Stage):
         started = time.perf_counter()
         trajectory = unit.params["trajectory"]
         embodiment = self.job.embodiment(trajectory["embodiment"])
-        poses = read_poses(context.run, trajectory["embodiment"], trajectory["video_name"], int(trajectory["frames"]))
+        poses = read_poses(context.run, trajectory)
         scene = self.load_scene(context.run, trajectory["scene_id"])
         renderer = _WORKER_CACHE.renderer(scene, embodiment, self.exposure)
         relative = f"videos/{embodiment.name}/{trajectory['video_name']}.zarr"
@@ -220,18 +220,27 @@ def illumination_label(embodiment: Embodiment) -> str:
     return f"spot-{light.power:g}W"
 
 
-def read_poses(run: "RunFolder", embodiment: str, video_name: str, frames: int) -> np.ndarray:
-    """(T, 4, 4) camera-to-world poses of a video from the plan's `frames` dataset, in frame order."""
-    folder = run.root / "frames"
-    if not folder.is_dir():
-        raise RenderInputError(f"{folder}: missing; run `mvpd rerun RUN --stage plan`")
-    table = pq.read_table(folder, schema=spec("frames").schema,
-                          filters=[("embodiment", "=", embodiment), ("video_name", "=", video_name)])
-    table = table.sort_by("frame")
+def read_poses(run: "RunFolder", trajectory: Mapping[str, Any]) -> np.ndarray:
+    """(T, 4, 4) camera-to-world poses of a video (a `trajectories` row) in frame order, from the one
+    `frames` part of the plan unit that wrote it (read in place on object storage)."""
+    embodiment, video_name, frames = trajectory["embodiment"], trajectory["video_name"], int(trajectory["frames"])
+    plan_unit = f"{trajectory['scene_id']}.{embodiment}"
+    relative = f"frames/part-{plan_unit}.parquet"
+    marker = run.marker("plan", plan_unit)
+    if marker is not None and relative in marker.outputs:
+        parts = [run.committed_location(marker, relative)]
+    else:  # frames committed otherwise (a fixture, a tool): every trusted part, filtered
+        parts = dataset_parts(run.root, "frames")
+    if not parts:
+        raise RenderInputError(f"{run.location}/frames: missing; run `mvpd rerun RUN --stage plan`")
+    schema = spec("frames").schema
+    table = pa.concat_tables([read_part(part, schema, run.store, filters=[("embodiment", "=", embodiment),
+                                                                          ("video_name", "=", video_name)])
+                              for part in parts]).sort_by("frame")
     order = table.column("frame").to_numpy()
     if len(order) != frames or not np.array_equal(order, np.arange(frames)):
-        raise RenderInputError(f"{folder}: {embodiment}/{video_name} has {len(order)} frame rows, the trajectory says "
-                               f"{frames} (indices must be 0..{frames - 1}); run `mvpd rerun RUN --stage plan --all`")
+        raise RenderInputError(f"{run.location}/frames: {embodiment}/{video_name} has {len(order)} frame rows, the "
+                               f"trajectory says {frames} (indices must be 0..{frames - 1}); run `mvpd rerun RUN --stage plan --all`")
     return pose_matrices(table)
 
 

@@ -25,11 +25,7 @@ def execute_unit(stage: Stage, run_root: str, unit: Unit, attempt: int) -> UnitO
     worker adds its retry number, so the marker and status say attempt 2 when the first worker died.
     Errors raised by the stage become a failed outcome; a dying process leaves only its staging folder.
     """
-    run = RunFolder(run_root)
-    if run.store is not None and run_root == run.location:
-        # A worker handed the store's URL (another process, maybe another node): bring its working copy in
-        # step with what the unit reads (the other stages) and with the unit's own last commit.
-        run.refresh_for_unit(stage.name, unit.id)
+    run = RunFolder(run_root)  # a worker handed a store's URL reads the store: nothing is pulled first
     retry = ray_retry_number()
     attempt += retry
     log_file = run.log_path(stage.name, unit.id)

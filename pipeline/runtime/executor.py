@@ -169,11 +169,7 @@ def run_stage(stage: Stage, run: RunFolder, force: bool = False, address: str | 
     attempts = {u.id: 1 + max(previous[(stage.name, u.id)].attempt if (stage.name, u.id) in previous else 0,
                               markers[u.id].attempt if u.id in markers else 0)
                 for u in plan.to_run}
-    if plan.to_run:
-        run.begin_stage(stage.name)
     outcomes = run_units(stage, run, plan.to_run, attempts, executor, address, on_unit) if plan.to_run else []
-    if outcomes:
-        run.refresh([stage.name])  # a remote run: the workers' commits, from the store's markers
     statuses = {unit: outcome for (_, unit), outcome in previous.items() if unit in {u.id for u in plan.units}}
     statuses.update({o.unit: o for o in outcomes})
     write_status(run.root, stage.name, statuses)

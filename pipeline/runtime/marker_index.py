@@ -32,6 +32,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline.runtime.markers import STATE, ColumnarManifest, Marker, parse_marker
+from pipeline.runtime.object_store import store_of
 
 log = logging.getLogger(__name__)
 
@@ -202,10 +203,18 @@ def write_index(folder: MarkerFolder) -> int:
     return sum(marker is not None for _, marker in rows.values())
 
 
+def marker_folder(root: Path | str, stage: str) -> MarkerFolder:
+    """The marker folder of a stage of the run `root` stands for: on local disk, or on its object store."""
+    store = store_of(root)
+    if store is not None:
+        return FsspecMarkerFolder(store.fs, store.key(f"{STATE}/{stage}"))
+    return LocalMarkerFolder(root, stage)
+
+
 def index_stage(root: Path | str, stage: str) -> None:
-    """The driver's write of a local stage's index after a stage run; a failure costs only speed (logged)."""
+    """The driver's write of a stage's index after a stage run; a failure costs only speed (logged)."""
     try:
-        write_index(LocalMarkerFolder(root, stage))
+        write_index(marker_folder(root, stage))
     except OSError as error:
         log.warning("marker index of stage %s not written (%s); readers read the markers instead", stage, error)
 

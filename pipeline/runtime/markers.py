@@ -21,6 +21,12 @@ from typing import Any, Iterable
 
 import google_crc32c
 
+from pipeline.lazy_import import lazy_module
+from pipeline.runtime.object_store import store_of
+
+# The object-store side of these functions (it builds on this module, so it is imported on first use).
+store_markers = lazy_module("pipeline.runtime.store_markers")
+
 log = logging.getLogger(__name__)
 
 STATE = "_state"
@@ -172,9 +178,17 @@ def read_marker(path: Path) -> Marker | None:
 def stage_markers(root: Path, stage: str) -> dict[str, Marker]:
     """Every valid marker of one stage, by unit id (through the stage's marker index, a cache checked
     against one listing of the folder: `pipeline.runtime.marker_index`)."""
-    from pipeline.runtime.marker_index import LocalMarkerFolder, load_markers  # it builds on this module
+    from pipeline.runtime.marker_index import load_markers, marker_folder  # it builds on this module
 
-    return load_markers(LocalMarkerFolder(root, stage))
+    return load_markers(marker_folder(root, stage))
+
+
+def unit_marker(root: Path, stage: str, unit: str) -> Marker | None:
+    """One unit's marker, None when it has none (a file read, or one GET on a store)."""
+    store = store_of(root)
+    if store is not None:
+        return store_markers.unit_marker(store, stage, unit)
+    return read_marker(marker_path(root, stage, unit))
 
 
 def write_marker(root: Path, marker: Marker) -> None:
@@ -215,12 +229,18 @@ def drop_marker(root: Path, stage: str, unit: str) -> None:
 
 def stages_writing(root: Path, dataset: str) -> list[str]:
     """Stages with committed parts of `dataset` (from the dataset index, no scan of the data folders)."""
+    store = store_of(root)
+    if store is not None:
+        return store_markers.stages_writing(store, dataset)
     folder = Path(root) / STATE / DATASET_INDEX / dataset
     return sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
 
 
 def marked_stages(root: Path) -> list[str]:
     """Stages (including pseudo-stages such as the status table's) that have a marker folder."""
+    store = store_of(root)
+    if store is not None:
+        return store_markers.marked_stages(store)
     folder = Path(root) / STATE
     return sorted(p.name for p in folder.iterdir() if p.is_dir() and p.name != DATASET_INDEX) if folder.is_dir() else []
 
@@ -232,7 +252,16 @@ def check_files(marker: Marker, root: Path, verify: bool = False, recorded: bool
     """Problems of a marker's files: missing or resized (a stat each); with `verify`, also a checksum mismatch.
 
     `recorded` adds damage an earlier verify or reader noted for this marker (see `record_damage`).
+    On object storage, objects are checked only with `verify` (see `store_markers`).
     """
+    store = store_of(root)
+    if store is not None:
+        notes = store_markers.damage_notes(store, marker.stage) if recorded else None
+        return store_markers.check_files(store, marker, verify, notes)
+    return _check_on_disk(marker, root, verify, recorded)
+
+
+def _check_on_disk(marker: Marker, root: Path, verify: bool = False, recorded: bool = True) -> list[Damage]:
     # A full-scale render marker names ~120 files and a run 18,000 markers: one os.stat on a joined
     # string per file, no Path object (a Path per file tripled the cost of `mvpd status`).
     prefix = os.path.join(os.fspath(root), "")
@@ -262,9 +291,14 @@ def unit_damage(root: Path, markers: dict[str, Marker]) -> dict[str, list[Damage
     One thread: over 2 M files on this 2-core machine, two threads of os.stat took 1.3-2.6x as long as
     one (measured on the 18,000 x 120-file run of benchmarks/bench_scaling.py), so the loop stays plain.
     """
+    store = store_of(root)
+    if store is not None:  # the recorded damage only: one read of each stage's notes (see store_markers)
+        notes = {stage: store_markers.damage_notes(store, stage) for stage in {m.stage for m in markers.values()}}
+        found = {unit: store_markers.recorded_damage(marker, notes[marker.stage]) for unit, marker in markers.items()}
+        return {unit: problems for unit, problems in found.items() if problems}
     damaged = {}
     for unit, marker in markers.items():
-        problems = check_files(marker, root)
+        problems = _check_on_disk(marker, root)
         if problems:
             damaged[unit] = problems
     return damaged
@@ -280,6 +314,10 @@ def record_damage(root: Path, marker: Marker, problems: list[Damage]) -> None:
     The note names the marker it judged (`finished_at`): a unit committed again since is not affected.
     A read-only run folder keeps no note; the damage is then found again by the next verify.
     """
+    store = store_of(root)
+    if store is not None:
+        store_markers.update_damage(store, marker.stage, [(marker, problems)])
+        return
     note = {"finished_at": marker.finished_at, "problems": [asdict(p) for p in problems]}
     try:
         atomic_write_text(_damage_path(root, marker.stage, marker.unit), json.dumps(note, indent=1))
@@ -289,6 +327,9 @@ def record_damage(root: Path, marker: Marker, problems: list[Damage]) -> None:
 
 def recorded_damage(root: Path, marker: Marker) -> list[Damage]:
     """Damage recorded by an earlier verify or read for this very marker."""
+    store = store_of(root)
+    if store is not None:
+        return store_markers.recorded_damage(marker, store_markers.damage_notes(store, marker.stage))
     try:
         note = json.loads(_damage_path(root, marker.stage, marker.unit).read_text(encoding="utf-8"))
         if note["finished_at"] != marker.finished_at:
@@ -302,6 +343,10 @@ def recorded_damage(root: Path, marker: Marker) -> list[Damage]:
 
 
 def clear_damage(root: Path, stage: str, unit: str) -> None:
+    store = store_of(root)
+    if store is not None:
+        store_markers.update_damage(store, stage, cleared=[unit])
+        return
     _damage_path(root, stage, unit).unlink(missing_ok=True)
 
 

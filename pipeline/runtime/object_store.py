@@ -1,14 +1,14 @@
 """Run folders on object storage (any fsspec URL: `s3://bucket/prefix`, `gs://...`, `memory://...`).
 
-A remote run folder is worked on through a *local working copy* (a cache folder per URL): units stage on
-local disk as they do for a local run; at commit their files are uploaded under keys unique to the unit
-and attempt (`_attempts/<stage>/<unit>/<attempt id>/<logical path>`), then the marker, last. The marker
-keeps the logical paths (`videos/<emb>/<video>.zarr/...`, `<dataset>/part-<unit>.parquet`) in `files` and
-maps each to its key in `keys`, so tables and file bytes are those of a local run and a reader trusts only
-keys a marker names: an attempt that died uploaded under keys nobody names. Readers pull: the markers
-are listed once (`_state/`) and fetched in one batch, and every file a new marker names is downloaded
-to its logical path in the working copy; nothing else of the bucket is listed. Stores have no rename,
-so nothing is renamed there.
+A remote run lives on its store and is read there. Units stage on local disk as they do for a local run
+(in a local folder per URL, `cache_folder`, which holds only the job file, staging, logs before upload and
+the lock's guard); at commit their files are uploaded under keys unique to the unit and attempt
+(`_attempts/<stage>/<unit>/<attempt id>/<logical path>`), then the marker, last. The marker keeps the
+logical paths (`videos/<emb>/<video>.zarr/...`, `<dataset>/part-<unit>.parquet`) in `files` and maps each
+to its key in `keys`, so tables and file bytes are those of a local run and a reader trusts only keys a
+marker names: an attempt that died uploaded under keys nobody names. Readers read those keys in place
+(pyarrow, DuckDB and Zarr through the same fsspec client); nothing but markers is listed. Stores have no
+rename, so nothing is renamed there.
 
 Credentials come only from the environment or the usual config files (fsspec/s3fs/botocore read them);
 no option holding one is ever taken from the command line or written anywhere by this module.
@@ -33,7 +33,7 @@ from fsspec.implementations.memory import MemoryFileSystem
 log = logging.getLogger(__name__)
 
 ATTEMPTS = "_attempts"
-# The remote URL a local working copy belongs to (the URL only: never a credential).
+# The remote URL a run's local folder stands for (the URL only: never a credential).
 REMOTE_FILE = ".remote-url"
 _URL = re.compile(r"^([a-z][a-z0-9+.-]+):/+(.*)$")
 # Variables a Ray worker needs to reach the same store as the driver (forwarded, never written down).
@@ -65,18 +65,29 @@ def local_path(location: str | os.PathLike) -> Path:
 
 
 def cache_folder(url: str) -> Path:
-    """The local working copy of a remote run (`MVPD_CACHE_DIR`, default ~/.cache/mvpd/runs), one per URL."""
+    """The local folder of a remote run (`MVPD_CACHE_DIR`, default ~/.cache/mvpd/runs), one per URL: staging and logs."""
     base = Path(os.environ.get("MVPD_CACHE_DIR") or Path.home() / ".cache" / "mvpd" / "runs")
     name = re.sub(r"[^A-Za-z0-9_.-]+", "_", url.split("://", 1)[1])[-60:]
     return base / f"{name}-{hashlib.sha256(url.encode()).hexdigest()[:12]}"
 
 
 def working_copy_url(root: Path) -> str | None:
-    """The URL a local folder is the working copy of (None for an ordinary local run folder)."""
+    """The URL a local folder stands for (None for an ordinary local run folder)."""
     try:
         return (Path(root) / REMOTE_FILE).read_text(encoding="utf-8").strip() or None
     except (FileNotFoundError, NotADirectoryError):
         return None
+
+
+def store_of(root: str | os.PathLike) -> "RunStore | None":
+    """The store of a run given by its URL or by the local folder that stands for it (its `.remote-url`);
+    None for a local run.
+
+    Readers are handed a run's local folder; this is how they learn to read the store instead. Not
+    memoized: fsspec caches the clients, and tests change the environment they are made from.
+    """
+    url = remote_url(root) or working_copy_url(Path(root))
+    return RunStore(url) if url else None
 
 
 def attempt_id() -> str:
@@ -97,6 +108,10 @@ class RunStore:
 
     def key(self, relative: str) -> str:
         return f"{self.prefix}/{relative}" if self.prefix else relative
+
+    def url_of(self, relative: str) -> str:
+        """The full URL of a key of the run (`s3://bucket/prefix/<relative>`), as DuckDB and Zarr open it."""
+        return self.fs.unstrip_protocol(self.key(relative))
 
     def check(self) -> None:
         """Fail with one line when the bucket is missing, the credentials are refused or the endpoint is down."""

@@ -8,9 +8,10 @@ Layout (see schemas/README.md):
     _staging/<stage>/<unit>/    where a running unit writes before its commit
     logs/<stage>/<unit>.log
 
-The folder may also be an object-store URL (`s3://bucket/prefix`, `memory://...`): the run is then
-worked on through a local working copy that markers keep in step with the store
-(`pipeline.runtime.object_store`); everything below reads and writes that copy, and a commit uploads.
+The folder may also be an object-store URL (`s3://bucket/prefix`, `memory://...`): the run then lives on
+the store and is read there, through its markers (`pipeline.runtime.object_store`, `store_markers`). A
+local folder per URL (`MVPD_CACHE_DIR`) holds only what must be local: the job file, units' staging,
+logs before upload and the lock's guard. It holds no output; readers given it read the store.
 """
 
 from __future__ import annotations
@@ -30,12 +31,13 @@ import yaml
 from pipeline.config import ConfigError, Job, job_from_resolved
 from pipeline.runtime import markers as marker_files
 from pipeline.runtime.markers import (  # noqa: F401 - Marker and atomic_write_text are imported from here too
+    DATASET_INDEX,
     STATE,
     Marker,
     atomic_write_text,
     code_version,
     describe_files,
-    parse_marker,
+    marker_text,
 )
 from pipeline.runtime.object_store import (
     ATTEMPTS,
@@ -48,17 +50,15 @@ from pipeline.runtime.object_store import (
     remote_url,
     working_copy_url,
 )
+from pipeline.runtime.store_markers import indexed_datasets
 from pipeline.runtime.tables import read_dataset
 
 JOB_FILE = "job.yaml"
 STAGING = "_staging"
 
 log = logging.getLogger(__name__)
-# On object storage: where the driver notes the start of each stage (a token workers compare), and the
-# token up to which this process has pulled the other stages, per (URL, working copy).
-STAGE_START = f"{STATE}/stage-start.txt"
-_PULLED_FOR: dict[tuple[str, str], str] = {}
-
+# Dataset index entries this process knows are on a store (one PUT per dataset and stage, not per unit).
+_INDEXED_ON_STORE: set[str] = set()
 
 
 # A name the run looks up (a video, a split, an embodiment): no separator and no leading dot, so it can
@@ -72,7 +72,8 @@ def is_plain_name(name: str) -> bool:
 
 
 def run_root(run: "RunFolder | str | os.PathLike[str]") -> Path:
-    """The local root of a RunFolder or a path; of an object-store URL, its working copy, brought up to date.
+    """The local root of a RunFolder or a path; of an object-store URL, the local folder that stands for it
+    (readers given it read the store).
 
     (A Path's own `.root` is "/", so paths are tested for first.)
     """
@@ -87,10 +88,11 @@ class RunFolderError(ValueError):
 
 
 class RunFolder:
-    """A run folder on local disk, a shared file system, or an object store (through a local working copy).
+    """A run folder on local disk, a shared file system, or an object store.
 
-    `root` is always a local folder (the run itself, or the working copy of a remote run); `store` is the
-    object-store side of a remote run (None on local disk) and `location` what a worker is handed.
+    `root` is always a local folder (the run itself, or the local folder standing for a remote run:
+    staging, logs, the job file); `store` is the object-store side of a remote run (None on local disk)
+    and `location` what a worker is handed.
     """
 
     def __init__(self, root: str | Path):
@@ -116,7 +118,7 @@ class RunFolder:
             if not run.store.exists(JOB_FILE) and run.store.exists(""):
                 raise RunFolderError(f"{run.location}: exists, is not empty and has no {JOB_FILE}; "
                                      "choose an empty or new prefix")
-            run.refresh()
+            run._fetch_job()
             return run
         if run.root.exists() and not run.root.is_dir():
             raise RunFolderError(f"{run.root}: is a file, not a run folder; choose a folder path")
@@ -144,7 +146,7 @@ class RunFolder:
             run._check_store()
             if not run.store.exists(JOB_FILE):
                 raise RunFolderError(f"{run.location}: not a run folder (no {JOB_FILE}); give the URL `mvpd submit` wrote")
-            run.refresh()
+            run._fetch_job()
             return run
         if not (run.root / JOB_FILE).is_file():
             raise RunFolderError(f"{run.root}: not a run folder (no {JOB_FILE}); give the folder `mvpd submit` wrote")
@@ -170,11 +172,25 @@ class RunFolder:
 
     def datasets(self) -> list[str]:
         """Names of the Parquet datasets some marker has committed parts of."""
+        if self.store is not None:
+            return indexed_datasets(self.store)
         folder = self.root / STATE / marker_files.DATASET_INDEX
         return sorted(p.name for p in folder.iterdir() if p.is_dir() and any(p.iterdir())) if folder.is_dir() else []
 
     def video_store(self, embodiment: str, video_name: str) -> Path:
+        """Where a unit stages (and, on local disk, commits) a video's Zarr store."""
         return self.root / "videos" / embodiment / f"{video_name}.zarr"
+
+    def committed_location(self, marker: Marker, relative: str) -> str:
+        """Where a file or Zarr store committed by `marker` is read: its local path, or its URL on the store."""
+        if self.store is None:
+            return str(self.root / relative)
+        if relative in marker.keys:
+            return self.store.url_of(marker.keys[relative])
+        metadata = marker.keys.get(f"{relative}/zarr.json")  # a Zarr store: the folder of its metadata
+        if metadata is None:
+            raise KeyError(f"{marker.stage}/{marker.unit} committed no {relative}")
+        return self.store.url_of(metadata.rsplit("/", 1)[0])
 
     # --------------------------------------------------------------------------------- markers
     def marker_path(self, stage: str, unit: str) -> Path:
@@ -182,21 +198,29 @@ class RunFolder:
 
     def marker(self, stage: str, unit: str) -> Marker | None:
         """The unit's marker; None when missing, unreadable or without a manifest (the unit runs again)."""
-        return marker_files.read_marker(self.marker_path(stage, unit))
+        return marker_files.unit_marker(self.root, stage, unit)
 
     def markers(self, stage: str) -> dict[str, Marker]:
         return marker_files.stage_markers(self.root, stage)
 
     def write_marker(self, marker: Marker) -> None:
         """Write the marker, on the store last of all the unit's objects (the commit point)."""
-        if self.store is not None:
-            self.store.put_text(self._marker_key(marker.stage, marker.unit), marker_files.marker_text(marker))
-        marker_files.write_marker(self.root, marker)
+        if self.store is None:
+            marker_files.write_marker(self.root, marker)
+            return
+        for dataset in sorted({f.split("/")[0] for f in marker.outputs if f.endswith(".parquet")}):
+            entry = f"{STATE}/{DATASET_INDEX}/{dataset}/{marker.stage}"
+            if f"{self.store.url}/{entry}" not in _INDEXED_ON_STORE:
+                if not self.store.exists(entry):
+                    self.store.put_text(entry, "")
+                _INDEXED_ON_STORE.add(f"{self.store.url}/{entry}")
+        self.store.put_text(self._marker_key(marker.stage, marker.unit), marker_text(marker))
 
     def drop_marker(self, stage: str, unit: str) -> None:
-        if self.store is not None:  # the store first: a copy that still has the marker is refreshed from it
+        if self.store is not None:
             self.store.remove([self._marker_key(stage, unit)])
-        marker_files.drop_marker(self.root, stage, unit)
+        else:
+            marker_files.drop_marker(self.root, stage, unit)
 
     # --------------------------------------------------------------------------------- staging
     def staging(self, stage: str, unit: str) -> Path:
@@ -216,14 +240,16 @@ class RunFolder:
         were just written and are read back from the page cache.
         """
         previous = self.marker(stage, unit)
-        if previous is not None or self.store is None:
+        if previous is not None:
             self.drop_marker(stage, unit)
-        else:  # nothing to drop on the store (the working copy is in step with it for this unit)
-            marker_files.drop_marker(self.root, stage, unit)
         outputs = sorted(_staged_outputs(staging))
         files = describe_files(staging, outputs)
-        keys = self._upload(stage, unit, staging, files) if self.store is not None else {}
-        self.commit(staging, outputs, previous.outputs if previous else [])
+        if self.store is not None:  # nothing is moved: the outputs stay under their attempt's keys
+            keys = self._upload(stage, unit, staging, files)
+            shutil.rmtree(staging, ignore_errors=True)
+        else:
+            keys = {}
+            self.commit(staging, outputs, previous.outputs if previous else [])
         marker = Marker(stage, unit, config_hash, code_version(), outputs, rows, round(seconds, 3), attempt, host,
                         finished_at, info or {}, files, node=node, keys=keys)
         self.write_marker(marker)
@@ -255,98 +281,12 @@ class RunFolder:
     def _marker_key(stage: str, unit: str) -> str:
         return f"{STATE}/{stage}/{unit}.json"
 
-    def refresh(self, stages: list[str] | None = None) -> None:
-        """Bring the working copy of a remote run in step with the store's markers (nothing on local disk).
-
-        The markers are listed once (of `stages`, or all) and fetched in one batch; the files a new or
-        changed marker names are downloaded to their logical paths; a marker gone from the store goes here.
-        """
-        if self.store is None:
-            return
+    def _fetch_job(self) -> None:
+        """Keep the job file of a remote run in its local folder (one GET; the only file copied)."""
+        assert self.store is not None
         job = self.store.read_text(JOB_FILE)
         if job is not None and job != _read(self.root / JOB_FILE):
             atomic_write_text(self.root / JOB_FILE, job)
-        folders = [f"{STATE}/{stage}" for stage in stages] if stages is not None else [STATE]
-        remote: dict[tuple[str, str], Marker] = {}
-        for folder in folders:
-            for relative, text in self.store.marker_texts(folder).items():
-                parts = relative.split("/")
-                marker = parse_marker(text) if len(parts) == 3 else None
-                if marker is not None:
-                    remote[(marker.stage, marker.unit)] = marker
-        local = {(stage, unit): marker for stage in (stages if stages is not None else marker_files.marked_stages(self.root))
-                 for unit, marker in self.markers(stage).items()}
-        for key, marker in sorted(remote.items()):
-            self._pull(marker, local.get(key))
-        for stage, unit in sorted(set(local) - set(remote)):
-            marker_files.drop_marker(self.root, stage, unit)
-
-    def begin_stage(self, stage: str) -> None:
-        """Tell workers (through the store) that the driver starts `stage`: each worker process then pulls
-        the other stages once for this start instead of before every unit (they do not change meanwhile)."""
-        if self.store is not None:
-            self.store.put_text(STAGE_START, f"{stage}.{time.time_ns()}")
-
-    def refresh_for_unit(self, stage: str, unit: str) -> None:
-        """A worker's pull before a unit: the other stages once per stage start (per process), and the
-        unit's own marker every time (one GET each; no listing but once per stage start)."""
-        if self.store is None:
-            return
-        started = self.store.read_text(STAGE_START)
-        memo = (self.store.url, str(self.root))
-        if started is None or _PULLED_FOR.get(memo) != started:
-            self.refresh([s for s in self._stages_on_store() if s != stage])
-            if started is not None:
-                _PULLED_FOR[memo] = started
-        self.refresh_unit(stage, unit)
-
-    def _stages_on_store(self) -> list[str]:
-        """The stages with a marker folder on the store (one listing of `_state/`)."""
-        assert self.store is not None
-        try:
-            entries = self.store.fs.ls(self.store.key(STATE), detail=True)
-        except FileNotFoundError:
-            return []
-        return sorted(e["name"].rstrip("/").rsplit("/", 1)[-1] for e in entries if e.get("type") == "directory")
-
-    def refresh_unit(self, stage: str, unit: str) -> None:
-        """Bring one unit's marker (and files) in step with the store (a worker before it runs the unit)."""
-        if self.store is None:
-            return
-        text = self.store.read_text(self._marker_key(stage, unit))
-        marker = parse_marker(text) if text is not None else None
-        if marker is None:
-            marker_files.drop_marker(self.root, stage, unit)
-        else:
-            self._pull(marker, self.marker(stage, unit))
-
-    def _pull(self, marker: Marker, current: Marker | None) -> None:
-        """Make the working copy hold exactly what `marker` names (a local commit of downloaded files)."""
-        assert self.store is not None
-        if current == marker and not marker_files.check_files(marker, self.root, recorded=False):
-            return
-        marker_files.drop_marker(self.root, marker.stage, marker.unit)
-        have = {f.path: f for f in current.files} if current is not None else {}
-        for entry in marker.files:
-            target = self.root / entry.path
-            if have.get(entry.path) == entry and target.is_file() and target.stat().st_size == entry.size:
-                continue
-            try:
-                self.store.get_file(marker.keys.get(entry.path, entry.path), target)
-            except FileNotFoundError:  # left missing: the unit shows as damaged and runs again
-                log.warning("%s: %s named by the marker of %s/%s is missing on the store",
-                            self.location, entry.path, marker.stage, marker.unit)
-                target.unlink(missing_ok=True)
-        named = {entry.path for entry in marker.files}
-        for output in marker.outputs:  # a Zarr store keeps no chunk of an earlier commit
-            folder = self.root / output
-            if folder.is_dir():
-                for member in [p for p in folder.rglob("*") if p.is_file()]:
-                    if member.relative_to(self.root).as_posix() not in named:
-                        member.unlink()
-        for relative in sorted(set(current.outputs if current else []) - set(marker.outputs)):
-            _remove(self.root / relative)
-        marker_files.write_marker(self.root, marker)
 
     def upload_log(self, stage: str, unit: str) -> None:
         """Copy a unit's log to the store (best effort: a log is not an output)."""

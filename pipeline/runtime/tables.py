@@ -16,11 +16,13 @@ import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pipeline.runtime.markers import Damage, check_files, record_damage, stage_markers, stages_writing
+from pipeline.runtime.markers import Damage, Marker, record_damage, stage_markers, stages_writing, unit_damage, unit_marker
+from pipeline.runtime.object_store import RunStore, store_of
 
 log = logging.getLogger(__name__)
 
@@ -103,40 +105,68 @@ def write_part(root: Path, dataset: str, unit_id: str, table: pa.Table) -> Path:
 
 @dataclass(frozen=True)
 class _Part:
-    path: Path
+    """A trusted part: where it is read from (a local path, or a URL on the run's store), who committed it."""
+
+    path: Path | str
+    relative: str  # its logical path in the run, `<dataset>/part-<unit>.parquet`
     stage: str
     unit: str
 
 
-def _trusted_parts(run_root: Path, dataset: str) -> tuple[list[_Part], list[Damage]]:
-    """Part files of `dataset` named by markers of undamaged units, and the damage that left the others out."""
+# A stage's markers and its damaged units, as one pass over them found them (shared by the datasets a
+# stage wrote: its ~120 files per unit are checked once, not once per dataset).
+_Checked = dict[str, tuple[dict[str, Marker], dict[str, list[Damage]]]]
+
+
+def _trusted_parts(run_root: Path, dataset: str, checked: _Checked | None = None) -> tuple[list[_Part], list[Damage]]:
+    """Part files of `dataset` named by markers of undamaged units, and the damage that left the others out.
+
+    On object storage the parts are the keys the markers name, read in place (`object_store.store_of`).
+    """
     root = Path(run_root)
+    store = store_of(root)
+    checked = {} if checked is None else checked
     parts, damaged = [], []
     prefix = f"{dataset}/"
     for stage in stages_writing(root, dataset):
-        for unit, marker in stage_markers(root, stage).items():
-            names = sorted(f.path for f in marker.files if f.path.startswith(prefix) and f.path.endswith(".parquet"))
-            if not names:
-                continue
+        if stage not in checked:
+            markers = stage_markers(root, stage)
             # Any bad file of the unit withholds all its rows: a `videos` row whose Zarr lost a shard would
             # otherwise send readers to zeros.
-            problems = check_files(marker, root)
-            if problems:
-                damaged.extend(problems)
-            else:
-                parts.extend(_Part(root / name, stage, unit) for name in names)
-    return sorted(parts, key=lambda p: p.path), damaged
+            checked[stage] = markers, unit_damage(root, markers)
+        markers, problems = checked[stage]
+        writers = {unit: sorted(o for o in marker.outputs if o.startswith(prefix) and o.endswith(".parquet"))
+                   for unit, marker in markers.items()}
+        writers = {unit: names for unit, names in writers.items() if names}
+        for unit, names in writers.items():
+            if unit in problems:
+                damaged.extend(problems[unit])
+                continue
+            keys = markers[unit].keys
+            parts.extend(_Part(store.url_of(keys.get(name, name)) if store is not None else root / name, name, stage, unit)
+                         for name in names)
+    return sorted(parts, key=lambda p: p.relative), damaged
 
 
-def trusted_parts(run_root: Path, dataset: str) -> tuple[list[Path], list[Damage]]:
+def trusted_parts(run_root: Path, dataset: str) -> tuple[list[Path | str], list[Damage]]:
     """`dataset_parts` and `damaged_parts` from one pass over the markers (a reader that reports damage
     and then reads checks each committed file once, not twice)."""
-    parts, damaged = _trusted_parts(run_root, dataset)
-    return [p.path for p in parts], damaged
+    return _paths(_trusted_parts(run_root, dataset))
 
 
-def dataset_parts(run_root: Path, dataset: str) -> list[Path]:
-    """The readable, marker-trusted part files of `dataset`, sorted: the one way every reader finds parts.
+def trusted_parts_of(run_root: Path, datasets: list[str]) -> dict[str, tuple[list[Path | str], list[Damage]]]:
+    """`trusted_parts` of several datasets, each stage's files checked once (a reader of many tables)."""
+    checked: _Checked = {}
+    return {dataset: _paths(_trusted_parts(run_root, dataset, checked)) for dataset in datasets}
+
+
+def _paths(found: tuple[list[_Part], list[Damage]]) -> tuple[list[Path | str], list[Damage]]:
+    return [p.path for p in found[0]], found[1]
+
+
+def dataset_parts(run_root: Path, dataset: str) -> list[Path | str]:
+    """The readable, marker-trusted part files of `dataset`, sorted: the one way every reader finds parts
+    (local paths; on object storage, the URLs of the keys their markers name).
 
     Listed are the parts markers name whose units are intact: a part whose marker is gone (an attempt
     that died, a retired unit) is not listed, nor a part of a unit with any file missing, resized or
@@ -171,14 +201,21 @@ def read_dataset(run_root: Path, dataset: str, warn: bool = True) -> pa.Table:
     parts, damaged = _trusted_parts(run_root, dataset)
     if damaged and warn:
         log.warning("%s", damage_line(dataset, damaged))
+    store = store_of(run_root)
     for part in parts:
         try:
-            tables.append(pq.read_table(part.path, schema=schema))
+            tables.append(read_part(part.path, schema, store))
         except (pa.ArrowException, OSError) as error:
-            relative = part.path.relative_to(run_root).as_posix()
             log.warning("%s: unreadable Parquet part (%s); skipped, rerun stage %s to rewrite it",
                         part.path, " ".join(str(error).split())[:200], part.stage)
-            marker = stage_markers(Path(run_root), part.stage).get(part.unit)
+            marker = unit_marker(Path(run_root), part.stage, part.unit)
             if marker is not None:
-                record_damage(Path(run_root), marker, [Damage(part.stage, part.unit, relative, "is unreadable Parquet")])
+                record_damage(Path(run_root), marker, [Damage(part.stage, part.unit, part.relative, "is unreadable Parquet")])
     return pa.concat_tables(tables) if tables else schema.empty_table()
+
+
+def read_part(location: Path | str, schema: pa.Schema, store: RunStore | None = None, **options: Any) -> pa.Table:
+    """One trusted part, from local disk or (a URL from `dataset_parts`) read in place from the run's store."""
+    if store is None:
+        return pq.read_table(location, schema=schema, **options)
+    return pq.read_table(store.fs._strip_protocol(str(location)), schema=schema, filesystem=store.fs, **options)

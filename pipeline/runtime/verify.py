@@ -16,6 +16,7 @@ from typing import Callable
 from pipeline.runtime.executors import ExecutorName, ray_is_running
 from pipeline.runtime.markers import Damage, Marker, check_files, clear_damage, marked_stages, record_damage, stage_markers
 from pipeline.runtime.run_folder import RunFolder
+from pipeline.runtime.store_markers import update_damage
 
 BATCH_BYTES = 512 * 2**20
 # auto: Ray pays for itself only when there is much to read (several nodes reading a shared store).
@@ -40,11 +41,15 @@ def verify_run(run: RunFolder, executor: ExecutorName = "auto", address: str | N
     progress = on_progress or (lambda done: None)
     use_ray = executor == "ray" or (executor == "auto" and (address or ray_is_running() or total >= RAY_FROM_BYTES))
     found = _verify_on_ray(run, markers, address, progress) if use_ray else _verify_inline(run, markers, progress)
-    damaged = {}
+    damaged = {(m.stage, m.unit): problems for m, problems in zip(markers, found) if problems}
+    if run.store is not None:  # one read and one write of each stage's damage notes
+        for stage in sorted({m.stage for m in markers}):
+            checked = [(m, problems) for m, problems in zip(markers, found) if m.stage == stage]
+            update_damage(run.store, stage, [(m, p) for m, p in checked if p], [m.unit for m, p in checked if not p])
+        return damaged
     for marker, problems in zip(markers, found):
         if problems:
             record_damage(run.root, marker, problems)
-            damaged[(marker.stage, marker.unit)] = problems
         else:
             clear_damage(run.root, marker.stage, marker.unit)
     return damaged
@@ -84,7 +89,8 @@ def _verify_on_ray(run: RunFolder, markers: list[Marker], address: str | None,
         batches[-1].append(index)
         size += sum(f.size for f in marker.files)
     task = ray.remote(_check_batch).options(num_cpus=1, name="mvpd.verify")
-    refs = {task.remote([markers[i] for i in batch], str(run.root)): batch for batch in batches if batch}
+    # A task is handed the run's location: a node of a cluster reads a remote run from its store.
+    refs = {task.remote([markers[i] for i in batch], run.location): batch for batch in batches if batch}
     results: list[list[Damage]] = [[] for _ in markers]
     pending = list(refs)
     while pending:

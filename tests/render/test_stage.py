@@ -37,7 +37,8 @@ def test_stores_have_the_documented_layout(rendered: RunFolder) -> None:
     attrs = video.attrs
     assert attrs["schema_version"] == 1 and attrs["illumination"] == "spot-20W"
     assert attrs["intrinsics"]["width"] == 64 and attrs["embodiment"]["name"] == "spot"
-    assert np.allclose(video.poses(), read_poses(rendered, "spot", NAMES[0], FRAMES))
+    row = next(r for r in rendered.read("trajectories").to_pylist() if (r["embodiment"], r["video_name"]) == ("spot", NAMES[0]))
+    assert np.allclose(video.poses(), read_poses(rendered, row))
     assert "render_seconds" not in str(attrs)
     ambient = open_video(rendered.video_store("ambient", NAMES[0]))
     assert "depth_clean" not in ambient.group and ambient.attrs["exposure"] is None
@@ -90,4 +91,4 @@ def test_two_runs_of_one_job_give_bit_identical_stores(rendered: RunFolder, tmp_
 def test_missing_frames_are_reported_with_the_fix(tmp_path: Path) -> None:
     run = RunFolder.create(tmp_path / "run", tiny_job())
     with pytest.raises(RenderInputError, match="run `mvpd rerun RUN --stage plan"):
-        read_poses(run, "ambient", NAMES[0], FRAMES)
+        read_poses(run, {"scene_id": "s", "embodiment": "ambient", "video_name": NAMES[0], "frames": FRAMES})

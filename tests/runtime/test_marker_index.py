@@ -11,7 +11,7 @@ from pathlib import Path
 import fsspec
 import pytest
 
-from pipeline.runtime import marker_index, markers
+from pipeline.runtime import marker_index
 from pipeline.runtime.executor import run_stage
 from pipeline.runtime.marker_index import INDEX_NAME, FsspecMarkerFolder, LocalMarkerFolder, load_markers, write_index
 from pipeline.runtime.markers import (Damage, Marker, OutputFile, check_files, marker_path, marker_text, parse_marker,

@@ -74,7 +74,12 @@ def test_urls_and_paths():
     assert str(RunFolder("file:///tmp/some-run").root) == "/tmp/some-run"
 
 
-def test_another_working_copy_sees_only_what_markers_name(url, cache, monkeypatch):
+def local_outputs(folder: Path) -> list[Path]:
+    """Parquet parts and Zarr files under a local folder (a remote run's local folder must hold none)."""
+    return [p for p in folder.rglob("*") if p.is_file() and (p.suffix == ".parquet" or ".zarr" in p.as_posix())]
+
+
+def test_another_machine_reads_only_what_markers_name_in_place(url, cache, monkeypatch):
     writer = RunFolder.prepare(url)
     commit_tables(writer, "fixture", "u1", outcome_rows("u1"))
     store = fsspec.filesystem("memory")
@@ -85,12 +90,11 @@ def test_another_working_copy_sees_only_what_markers_name(url, cache, monkeypatc
     assert not store.exists(f"{prefix}/status")  # no object at a logical path: nothing was renamed into place
     monkeypatch.setenv("MVPD_CACHE_DIR", str(cache.parent / "other-machine"))
     reader = RunFolder(url)
-    reader.refresh()
     assert reader.root != writer.root
     assert read_dataset(reader.root, "status").column("unit").to_pylist() == ["u1"]
-    # The unit's marker goes from the store (retired elsewhere): a refresh drops it here too.
+    assert local_outputs(reader.root) == [] and local_outputs(writer.root) == []  # read in place, no copy
+    # The unit's marker goes from the store (retired elsewhere): its rows go with it at once.
     store.rm_file(f"{prefix}/_state/fixture/u1.json")
-    reader.refresh()
     assert read_dataset(reader.root, "status").num_rows == 0
 
 
@@ -131,24 +135,27 @@ def test_a_failed_upload_fails_the_unit_and_marks_nothing_done(tmp_path):
     assert read_dataset(run.root, "status").column("unit").to_pylist() == ["u1"]
 
 
-def test_a_worker_lists_the_other_stages_once_per_stage_start(url, monkeypatch):
+class CopyingStage(Stage):
+    """Reads the `status` rows an upstream unit committed and commits them again as its own."""
+
+    name = "fixture"
+
+    def units(self, run: RunFolder) -> list[Unit]:
+        return [Unit("copy")]
+
+    def run_unit(self, unit: Unit, context: UnitContext) -> UnitResult:
+        context.write_table("status", context.run.read("status"))
+        return UnitResult()
+
+
+def test_a_worker_reads_its_inputs_in_place_and_commits_by_upload(url, cache, monkeypatch):
     run = RunFolder.prepare(url)
     commit_tables(run, "upstream", "u1", outcome_rows("u1"))
-    listings = []
-    real_ls = MemoryFileSystem.ls
-
-    def counting_ls(self, path, detail=True, **kwargs):
-        listings.append(path)
-        return real_ls(self, path, detail=detail, **kwargs)
-
-    monkeypatch.setattr(MemoryFileSystem, "ls", counting_ls)
-    worker = RunFolder(url)  # a worker handed the URL
-    run.begin_stage("fixture")
-    worker.refresh_for_unit("fixture", "a")
-    first = len(listings)
-    worker.refresh_for_unit("fixture", "b")
-    assert first > 0 and len(listings) == first  # the second unit lists nothing
-    assert worker.marker("upstream", "u1") is not None
-    run.begin_stage("fixture")  # the next stage run: upstream may have changed, pull again
-    worker.refresh_for_unit("fixture", "c")
-    assert len(listings) > first
+    monkeypatch.setenv("MVPD_CACHE_DIR", str(cache.parent / "worker-machine"))
+    worker = RunFolder(url)  # what a Ray task is handed: the URL
+    job = Job(name="fixture", seed=0, scenes=SceneSources(procedural=ProceduralSource(count=1)),
+              embodiments=[Embodiment(name="a", placements=[1.0])])
+    assert not execute_unit(CopyingStage(job), url, Unit("copy"), attempt=1).failed
+    assert local_outputs(worker.root) == []  # neither the upstream part nor its own output stayed local
+    assert read_dataset(run.root, "status").column("unit").to_pylist() == ["u1", "u1"]
+    assert sorted(run.marker("fixture", "copy").keys) == ["status/part-copy.parquet"]

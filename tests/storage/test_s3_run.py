@@ -14,7 +14,11 @@ from typer.testing import CliRunner
 
 from pipeline.cli.main import app
 from pipeline.runtime import object_store
+from pipeline.runtime.executor import plan_stage
 from pipeline.runtime.markers import parse_marker
+from pipeline.runtime.run_folder import RunFolder
+from pipeline.runtime.verify import verify_run
+from pipeline.stages import make_stage
 from tests.demo_run import DEMO_SHAPED_JOB, DEMO_VIDEO, demo_shaped_run
 from tests.storage.conftest import BUCKET, TEST_KEY_ID, TEST_SECRET, S3Server, forget_clients
 
@@ -92,9 +96,15 @@ def test_demo_on_s3_equals_local_disk_byte_for_byte(s3, s3_run, tmp_path_factory
     assert not s3.fs.exists(f"{prefix}/videos") and s3.fs.exists(f"{prefix}/{object_store.ATTEMPTS}")
 
 
+def local_data(folder: Path) -> list[Path]:
+    """Parquet parts and Zarr files below a local folder."""
+    return [p for p in folder.rglob("*") if p.is_file() and (p.suffix == ".parquet" or ".zarr" in p.as_posix())]
+
+
 def test_status_query_and_load_video_read_the_bucket(s3, s3_run, tmp_path_factory, monkeypatch):
-    # A fresh working copy (another machine): everything comes from the bucket.
-    monkeypatch.setenv("MVPD_CACHE_DIR", str(tmp_path_factory.mktemp("other-machine")))
+    # A fresh local folder (another machine): everything is read in place on the bucket, nothing copied.
+    machine = tmp_path_factory.mktemp("other-machine")
+    monkeypatch.setenv("MVPD_CACHE_DIR", str(machine))
     status = invoke("status", s3_run)
     assert status.exit_code == 0, status.output
     assert "render" in status.output and "│ 12    │ 12   │" in status.output
@@ -113,6 +123,32 @@ def test_status_query_and_load_video_read_the_bucket(s3, s3_run, tmp_path_factor
     assert ours.rgb.shape == theirs.rgb.shape and ours.rgb.shape[0] > 0
     np.testing.assert_array_equal(ours.rgb[:], theirs.rgb[:])
     np.testing.assert_array_equal(ours.poses, theirs.poses)
+    assert str(ours.path).startswith(f"{s3_run}/{object_store.ATTEMPTS}/render/")
+    assert local_data(machine) == [] and sum(p.stat().st_size for p in machine.rglob("*") if p.is_file()) < 64_000
+
+
+def test_verify_finds_damage_on_the_bucket_and_a_rerun_repairs_it(s3, s3_run, monkeypatch, tmp_path_factory):
+    monkeypatch.setenv("MVPD_CACHE_DIR", str(tmp_path_factory.mktemp("verifier")))
+    before = trusted_bytes_on_store(s3, s3_run)
+    prefix = s3_run.removeprefix("s3://")
+    marker = store_markers(s3, s3_run)[f"render/ambient.{DEMO_VIDEO}"]
+    chunk = next(f.path for f in marker.files if "/rgb/c/" in f.path)
+    part = next(f.path for f in marker.files if f.path.endswith(".parquet"))
+    s3.fs.rm_file(f"{prefix}/{marker.keys[chunk]}")  # a lost object
+    s3.fs.pipe_file(f"{prefix}/{marker.keys[part]}", b"not parquet")  # an object replaced by other bytes
+    unit = f"ambient.{DEMO_VIDEO}"
+    run = RunFolder.open(s3_run)
+    assert plan_stage(make_stage("render", run.job()), run).damaged == {}  # status trusts the markers ...
+    found = verify_run(run, executor="local")  # ... a verify reads the bucket
+    assert list(found) == [("render", unit)]
+    assert {(d.path, d.problem.split(" ")[0]) for d in found[("render", unit)]} == {(chunk, "is"), (part, "has")}
+    assert list(plan_stage(make_stage("render", run.job()), run).damaged) == [unit]  # recorded on the bucket
+    status = invoke("status", s3_run)
+    assert f"render/{unit} damaged" in status.output and f"mvpd rerun {s3_run} --stage render" in status.output, status.output
+    again = invoke("rerun", s3_run, "--stage", "render", "--executor", "local")
+    assert again.exit_code == 0 and "1 done, 0 failed, 11 up to date" in again.output, again.output
+    assert_same_outputs(trusted_bytes_on_store(s3, s3_run), before)
+    assert verify_run(RunFolder.open(s3_run), executor="local") == {}
 
 
 def test_no_credential_is_written_to_the_bucket_or_the_working_copy(s3, s3_run):

@@ -39,6 +39,7 @@ from pipeline.io.mvpd.layout import (
 )
 from pipeline.io.segments import DenseLabels, frame_segments
 from pipeline.io.mvpd.split_files import empty_videos_file, split_rows_of, zero_shot_file
+from pipeline.io.reader import video_locations
 from pipeline.io.zarr_video import Video, open_video
 from pipeline.runtime.run_folder import RunFolder, atomic_write_text
 from pipeline.split.selection import has_split, split_rows
@@ -112,9 +113,10 @@ def export_release(run_root: Path, out_root: Path, split: str = "test", embodime
     staging.mkdir(parents=True)
     try:
         exported = []
+        stores = video_locations(run)  # local paths, or URLs on the run's object store
         for name in videos:
-            extra_rgb = {folder: open_video(run.video_store(other, name)) for folder, other in lit.items()}
-            exporter = VideoExporter(open_video(run.video_store(chosen, name)), objects, staging, extra_rgb,
+            extra_rgb = {folder: open_video(stores[(other, name)]) for folder, other in lit.items()}
+            exporter = VideoExporter(open_video(stores[(chosen, name)]), objects, staging, extra_rgb,
                                      first_image_id=sum(len(v.images) for v in exported))
             exported.append(exporter.run())
             if on_video is not None:
