@@ -1,6 +1,7 @@
-"""Overhead of a run folder on object storage (not a test): the tiny demo job on local disk vs a local S3 API.
+"""Overhead of a run folder on object storage (not a test): a job on local disk vs a local S3 API.
 
-The same job (3 procedural scenes, 2 embodiments, 64x48 px, 10-30 frames per video) is submitted as a
+Two jobs: `tiny` (the tests' demo shape: 3 procedural scenes, 2 embodiments, 64x48 px, 10-30 frames per
+video) and `vga` (1 scene, 3 videos of 100-160 frames at 640x480, MVPd's resolution). Each is submitted as a
 whole command (`mvpd submit --executor local`, in-process, so both sides run the same units the same
 way) into a fresh local folder and into a fresh prefix of a bucket on moto's S3 server (started here as
 its own process on 127.0.0.1, so its CPU is not ours to count). Runs alternate local / S3, `--repeats`
@@ -8,9 +9,9 @@ each. Figures per rendered frame, median and spread, with the ratio S3 / local (
 command's wall time, and the render stage's (its summary line: units rendered, staged and committed). The machine is shared: the load average is recorded before and after, and ratios hold where
 seconds do not.
 
-    .venv/bin/python benchmarks/bench_storage.py [--repeats 3]
+    .venv/bin/python benchmarks/bench_storage.py [--repeats 3] [--jobs tiny vga]
 
-Writes benchmarks/results/storage.json.
+Writes benchmarks/results/storage.json (one entry per job; a job not measured keeps its last figures).
 """
 
 from __future__ import annotations
@@ -36,6 +37,20 @@ RESULTS = REPO / "benchmarks" / "results" / "storage.json"
 PYTHON = sys.executable
 CLI = ["-c", "from pipeline.cli.main import app; app()"]
 BUCKET = "mvpd-bench"
+VGA_JOB = """
+name: storage-vga
+seed: 0
+scenes:
+  procedural: {count: 1, seed: 0, detail: 0.5}
+embodiments:
+  - name: cam
+    sensor: {width: 640, height: 480, hfov: 69.0}
+    placements: [1.0]
+    body: {radius: 0.15, height: 1.2}
+plan: {trajectories_per_scene: 3, min_frames: 100, max_frames: 160}
+"""
+JOBS = {"tiny": (TINY_DEMO_JOB, "tiny demo: 3 procedural scenes x 2 embodiments x 2 heights, 64x48 px, executor local"),
+        "vga": (VGA_JOB, "1 procedural scene, 3 videos of 100-160 frames at 640x480, executor local")}
 
 
 def free_port() -> int:
@@ -85,48 +100,30 @@ def summary(values: list[float]) -> dict:
             "runs": [round(v, 5) for v in values]}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=3)
-    args = parser.parse_args()
-    port = free_port()
-    server = start_s3(port)
-    work = Path(tempfile.mkdtemp(prefix="bench-storage-"))
-    env = {**os.environ, "PYTHONPATH": str(REPO), "AWS_ACCESS_KEY_ID": "bench", "AWS_SECRET_ACCESS_KEY": "bench",
-           "AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}", "AWS_DEFAULT_REGION": "us-east-1",
-           "MVPD_CACHE_DIR": str(work / "cache"), "RAY_USAGE_STATS_ENABLED": "0"}
-    env.pop("AWS_PROFILE", None)
-    env.pop("AWS_SESSION_TOKEN", None)
-    try:
-        import s3fs
-
-        os.environ.update({k: env[k] for k in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_ENDPOINT_URL",
-                                               "AWS_DEFAULT_REGION")})
-        s3fs.S3FileSystem().mkdir(BUCKET)
-        job = work / "demo.yaml"
-        job.write_text(TINY_DEMO_JOB, encoding="utf-8")
-        load_before = os.getloadavg()
-        seconds: dict[str, list[float]] = {"local": [], "s3": []}
-        unit_seconds: dict[str, list[float]] = {"local": [], "s3": []}
-        frames = 0
-        for repeat in range(args.repeats):
-            for side in ("local", "s3"):  # interleaved: a load change hits both sides alike
-                run_dir = str(work / f"local-{repeat}") if side == "local" else f"s3://{BUCKET}/run-{repeat}"
-                whole, rendering = submit(job, run_dir, env)
-                seconds[side].append(whole)
-                unit_seconds[side].append(rendering)
-                frames = frames or frame_count(run_dir, env)
-                print(f"{side} run {repeat + 1}: {whole:.2f} s, render stage {rendering:.2f} s", flush=True)
-        load_after = os.getloadavg()
-    finally:
-        server.terminate()
-        server.wait(timeout=30)
+def measure(name: str, work: Path, env: dict[str, str], repeats: int) -> dict:
+    """The job `name` on local disk and on the bucket, interleaved, `repeats` times each."""
+    text, description = JOBS[name]
+    job = work / f"{name}.yaml"
+    job.write_text(text, encoding="utf-8")
+    load_before = os.getloadavg()
+    seconds: dict[str, list[float]] = {"local": [], "s3": []}
+    unit_seconds: dict[str, list[float]] = {"local": [], "s3": []}
+    frames = 0
+    for repeat in range(repeats):
+        for side in ("local", "s3"):  # interleaved: a load change hits both sides alike
+            run_dir = str(work / f"{name}-local-{repeat}") if side == "local" else f"s3://{BUCKET}/{name}-{repeat}"
+            whole, rendering = submit(job, run_dir, env)
+            seconds[side].append(whole)
+            unit_seconds[side].append(rendering)
+            frames = frames or frame_count(run_dir, env)
+            print(f"{name} {side} run {repeat + 1}: {whole:.2f} s, render stage {rendering:.2f} s", flush=True)
+    load_after = os.getloadavg()
     per_frame = {side: [s / frames for s in values] for side, values in seconds.items()}
     ratios = [s3 / local for s3, local in zip(seconds["s3"], seconds["local"])]
     unit_per_frame = {side: [s / frames for s in values] for side, values in unit_seconds.items()}
     unit_ratios = [s3 / local for s3, local in zip(unit_seconds["s3"], unit_seconds["local"])]
-    result = {
-        "job": "tiny demo: 3 procedural scenes x 2 embodiments x 2 heights, 64x48 px, executor local",
+    return {
+        "job": description,
         "frames": frames,
         "seconds_per_frame": {side: summary(values) for side, values in per_frame.items()},
         "ratio_s3_to_local": summary(ratios),
@@ -139,12 +136,41 @@ def main() -> None:
         "load_average_before": [round(x, 2) for x in load_before],
         "load_average_after": [round(x, 2) for x in load_after],
         "cpus": os.cpu_count(),
-        "note": "seconds_per_frame: whole `mvpd submit` commands (Python start, planning, render, commit, status); the S3 side "
-                "uploads every file, each marker last, to moto's server on 127.0.0.1 (its own process)",
+        "note": "seconds_per_frame: whole `mvpd submit` commands (Python start, planning, render, commit, status); the "
+                "S3 side uploads every file, each marker last, to moto's server on 127.0.0.1 (its own process), "
+                "and reads every input in place",
     }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--jobs", nargs="+", choices=sorted(JOBS), default=sorted(JOBS))
+    args = parser.parse_args()
+    port = free_port()
+    server = start_s3(port)
+    work = Path(tempfile.mkdtemp(prefix="bench-storage-"))
+    env = {**os.environ, "PYTHONPATH": str(REPO), "AWS_ACCESS_KEY_ID": "bench", "AWS_SECRET_ACCESS_KEY": "bench",
+           "AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}", "AWS_DEFAULT_REGION": "us-east-1",
+           "MVPD_CACHE_DIR": str(work / "cache"), "RAY_USAGE_STATS_ENABLED": "0"}
+    env.pop("AWS_PROFILE", None)
+    env.pop("AWS_SESSION_TOKEN", None)
+    results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+    results = results if set(results) <= set(JOBS) else {}  # the one-job layout of earlier versions is replaced
+    try:
+        import s3fs
+
+        os.environ.update({k: env[k] for k in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_ENDPOINT_URL",
+                                               "AWS_DEFAULT_REGION")})
+        s3fs.S3FileSystem().mkdir(BUCKET)
+        for name in args.jobs:
+            results[name] = measure(name, work, env, args.repeats)
+            print(name, json.dumps(results[name], indent=1), flush=True)
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
-    print(json.dumps(result, indent=1))
+    RESULTS.write_text(json.dumps(results, indent=1) + "\n", encoding="utf-8")
 
 
 if __name__ == "__main__":

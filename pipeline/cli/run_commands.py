@@ -301,25 +301,32 @@ def logs(
         run = RunFolder.open(run_dir)
     except USAGE_ERRORS as error:
         fail(str(error))
-    found = _unit_logs(run.root / "logs", unit, stage)
+    found = _unit_logs(run, unit, stage)
     if not found:
-        fail(f"{run.root / 'logs'}: no log for unit {unit!r}{f' of stage {stage!r}' if stage else ''}; "
+        fail(f"{run.location}/logs: no log for unit {unit!r}{f' of stage {stage!r}' if stage else ''}; "
              "unit ids are listed by `mvpd status` and `_state/`")
-    for path in found:
-        typer.echo(f"== {path.relative_to(run.root)} ==")
-        typer.echo(path.read_text(encoding="utf-8", errors="replace"), nl=False)
+    for relative, text in found:
+        typer.echo(f"== {relative} ==")
+        typer.echo(text, nl=False)
 
 
-def _unit_logs(logs_folder: Path, unit: str, stage: str | None) -> list[Path]:
-    """The log files named exactly `<unit>.log` in the stage folders of `logs/` (all, or the one named).
+def _unit_logs(run: RunFolder, unit: str, stage: str | None) -> list[tuple[str, str]]:
+    """(path in the run, text) of the logs named exactly `<unit>.log` in the stage folders of `logs/` (all,
+    or the one named): on local disk, or as uploaded to the run's object store.
 
     Names are compared with the folder listing, never joined into a path: `../x` or `/etc/x` finds nothing.
     """
+    wanted = f"{unit}.log"
+    if run.store is not None:
+        listed = sorted(key for key in run.store.list_objects("logs") if key.count("/") == 2)
+        return [(key, run.store.read_text(key) or "") for key in listed
+                if key.split("/")[2] == wanted and stage in (None, key.split("/")[1])]
+    logs_folder = run.root / "logs"
     if not logs_folder.is_dir():
         return []
-    wanted = f"{unit}.log"
-    return sorted(entry for folder in sorted(logs_folder.iterdir()) if folder.is_dir() and stage in (None, folder.name)
-                  for entry in folder.iterdir() if entry.name == wanted and entry.is_file())
+    return [(entry.relative_to(run.root).as_posix(), entry.read_text(encoding="utf-8", errors="replace"))
+            for folder in sorted(logs_folder.iterdir()) if folder.is_dir() and stage in (None, folder.name)
+            for entry in sorted(folder.iterdir()) if entry.name == wanted and entry.is_file()]
 
 
 def gc_command(

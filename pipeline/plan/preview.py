@@ -18,10 +18,9 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.parquet as pq
 
 from pipeline.config import Body, PlanConfig
-from pipeline.io.tables import spec
+from pipeline.io.tables import read_part, spec
 from pipeline.plan.navigable import (MeshQuery, NavigableArea, NavigableAreaError, compute_navigable_area, drawable_islands,
                                       island_summary)
 from pipeline.plan.stage import navmesh_path
@@ -205,7 +204,11 @@ def run_floor_paths(run: RunFolder, scene_id: str, embodiment: str) -> list[np.n
 
 
 def _unit_part(run: RunFolder, dataset: str, unit: str) -> pa.Table:
-    """One unit's part file of a dataset, with the registered schema (empty when the unit wrote none)."""
-    path = run.root / dataset / f"part-{unit}.parquet"
+    """One plan unit's committed part of a dataset, with the registered schema (empty when it wrote none);
+    on object storage read in place at the key its marker names."""
+    relative = f"{dataset}/part-{unit}.parquet"
+    marker = run.marker("plan", unit)
     schema = spec(dataset).schema
-    return pq.read_table(path, schema=schema) if path.is_file() else schema.empty_table()
+    if marker is None or relative not in marker.outputs:
+        return schema.empty_table()
+    return read_part(run.committed_location(marker, relative), schema, run.store)

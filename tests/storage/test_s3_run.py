@@ -124,6 +124,8 @@ def test_status_query_and_load_video_read_the_bucket(s3, s3_run, tmp_path_factor
     np.testing.assert_array_equal(ours.rgb[:], theirs.rgb[:])
     np.testing.assert_array_equal(ours.poses, theirs.poses)
     assert str(ours.path).startswith(f"{s3_run}/{object_store.ATTEMPTS}/render/")
+    logs = invoke("logs", s3_run, f"ambient.{DEMO_VIDEO}", "--stage", "render")  # as uploaded by the worker
+    assert logs.exit_code == 0 and f"== logs/render/ambient.{DEMO_VIDEO}.log ==" in logs.output and "committed" in logs.output
     assert local_data(machine) == [] and sum(p.stat().st_size for p in machine.rglob("*") if p.is_file()) < 64_000
 
 
