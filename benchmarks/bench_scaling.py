@@ -44,7 +44,7 @@ import psutil  # noqa: E402
 import ray  # noqa: E402
 import ray.cloudpickle  # noqa: E402
 
-from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources, load_job  # noqa: E402
+from pipeline.config import Embodiment, Job, ProceduralSource, RenderConfig, SceneSources, load_job  # noqa: E402
 from pipeline.runtime.executor import code_version, plan_stage, run_stage  # noqa: E402
 from pipeline.runtime.marker_index import INDEX_NAME, index_stage  # noqa: E402
 from pipeline.runtime.markers import Marker, OutputFile, stage_markers, unit_damage, write_marker  # noqa: E402
@@ -58,8 +58,9 @@ MVPD_VIDEOS = 18_000
 MVPD_FRAMES = 6_060_000
 NODE_CORES = 16
 NODE_COUNTS = (1, 8, 32)
-# A full-scale render marker: ~340 frames, 16 frames per shard, 5 arrays (+ their zarr.json) and 3 parts.
-FULL_SCALE_MARKER_FILES = 120
+# A full-scale render marker: ~340 frames in shards of `render.frames_per_shard` frames, 5 arrays (+ their
+# zarr.json and the group's) and 3 parts: 120 files with the former 16-frame shards, 39 with 64.
+FULL_SCALE_MARKER_FILES = -(-340 // RenderConfig().frames_per_shard) * 5 + 6 + 3
 FIGURES = ("driver_at_scale", "status_full_size_markers", "unit_overhead", "render_workers", "cost_model")
 
 

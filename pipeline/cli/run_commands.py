@@ -116,12 +116,14 @@ def demo(
             report = submit(load_checked_job(DEMO_JOB), run_dir, None, address, observer)
         if report.failed:
             _finish(report)
-        pictures = write_overview(RunFolder.open(run_dir), run_dir / "previews")
+        run = RunFolder.open(run_dir)
+        # Pictures are for looking at here: in the run folder, or for a run on object storage in its local folder.
+        previews = run.root / "previews"
+        pictures = write_overview(run, previews)
     except USAGE_ERRORS as error:
         fail(str(error))
-    console.print(f"[bold]look at:[/] {len(pictures)} pictures in {run_dir / 'previews'}, e.g. {pictures[-3]} "
-                  f"and {pictures[-1]}")
-    console.print(f'[bold]query:[/] mvpd query {run_dir} "select embodiment, count(*) videos, sum(frames) frames '
+    console.print(f"[bold]look at:[/] {len(pictures)} pictures in {previews}, e.g. {pictures[-3]} and {pictures[-1]}")
+    console.print(f'[bold]query:[/] mvpd query {run.location} "select embodiment, count(*) videos, sum(frames) frames '
                   'from videos group by 1"')
     stats(run_dir)
     from pipeline.cli.models import demo_model_report
