@@ -262,7 +262,7 @@ def check_files(marker: Marker, root: Path, verify: bool = False, recorded: bool
 
 
 def _check_on_disk(marker: Marker, root: Path, verify: bool = False, recorded: bool = True) -> list[Damage]:
-    # A full-scale render marker names ~120 files and a run 18,000 markers: one os.stat on a joined
+    # A full-scale render marker names ~40 files and a run 18,000 markers: one os.stat on a joined
     # string per file, no Path object (a Path per file tripled the cost of `mvpd status`).
     prefix = os.path.join(os.fspath(root), "")
     stat = os.stat

@@ -114,7 +114,7 @@ class _Part:
 
 
 # A stage's markers and its damaged units, as one pass over them found them (shared by the datasets a
-# stage wrote: its ~120 files per unit are checked once, not once per dataset).
+# stage wrote: its ~40 files per unit are checked once, not once per dataset).
 _Checked = dict[str, tuple[dict[str, Marker], dict[str, list[Damage]]]]
 
 
