@@ -57,8 +57,6 @@ JOB_FILE = "job.yaml"
 STAGING = "_staging"
 
 log = logging.getLogger(__name__)
-# Dataset index entries this process knows are on a store (one PUT per dataset and stage, not per unit).
-_INDEXED_ON_STORE: set[str] = set()
 
 
 # A name the run looks up (a video, a split, an embodiment): no separator and no leading dot, so it can
@@ -107,6 +105,7 @@ class RunFolder:
                 atomic_write_text(self.root / REMOTE_FILE, url)
         self.store = RunStore(url) if url else None
         self.location = self.store.url if self.store else str(self.root)
+        self._indexed: set[str] = set()  # dataset index entries known to be on the store
 
     # ------------------------------------------------------------------------------------ job
     @classmethod
@@ -210,10 +209,10 @@ class RunFolder:
             return
         for dataset in sorted({f.split("/")[0] for f in marker.outputs if f.endswith(".parquet")}):
             entry = f"{STATE}/{DATASET_INDEX}/{dataset}/{marker.stage}"
-            if f"{self.store.url}/{entry}" not in _INDEXED_ON_STORE:
+            if entry not in self._indexed:  # one HEAD per dataset per RunFolder, a PUT only the first time
                 if not self.store.exists(entry):
                     self.store.put_text(entry, "")
-                _INDEXED_ON_STORE.add(f"{self.store.url}/{entry}")
+                self._indexed.add(entry)
         self.store.put_text(self._marker_key(marker.stage, marker.unit), marker_text(marker))
 
     def drop_marker(self, stage: str, unit: str) -> None:
