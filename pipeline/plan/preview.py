@@ -206,9 +206,6 @@ def run_floor_paths(run: RunFolder, scene_id: str, embodiment: str) -> list[np.n
 def _unit_part(run: RunFolder, dataset: str, unit: str) -> pa.Table:
     """One plan unit's committed part of a dataset, with the registered schema (empty when it wrote none);
     on object storage read in place at the key its marker names."""
-    relative = f"{dataset}/part-{unit}.parquet"
-    marker = run.marker("plan", unit)
+    part = run.committed_part("plan", unit, dataset)
     schema = spec(dataset).schema
-    if marker is None or relative not in marker.outputs:
-        return schema.empty_table()
-    return read_part(run.committed_location(marker, relative), schema, run.store)
+    return read_part(part, schema, run.store) if part is not None else schema.empty_table()

@@ -224,13 +224,9 @@ def read_poses(run: "RunFolder", trajectory: Mapping[str, Any]) -> np.ndarray:
     """(T, 4, 4) camera-to-world poses of a video (a `trajectories` row) in frame order, from the one
     `frames` part of the plan unit that wrote it (read in place on object storage)."""
     embodiment, video_name, frames = trajectory["embodiment"], trajectory["video_name"], int(trajectory["frames"])
-    plan_unit = f"{trajectory['scene_id']}.{embodiment}"
-    relative = f"frames/part-{plan_unit}.parquet"
-    marker = run.marker("plan", plan_unit)
-    if marker is not None and relative in marker.outputs:
-        parts = [run.committed_location(marker, relative)]
-    else:  # frames committed otherwise (a fixture, a tool): every trusted part, filtered
-        parts = dataset_parts(run.root, "frames")
+    part = run.committed_part("plan", f"{trajectory['scene_id']}.{embodiment}", "frames")
+    # Frames committed otherwise (a fixture, a tool): every trusted part, filtered.
+    parts = [part] if part is not None else dataset_parts(run.root, "frames")
     if not parts:
         raise RenderInputError(f"{run.location}/frames: missing; run `mvpd rerun RUN --stage plan`")
     schema = spec("frames").schema

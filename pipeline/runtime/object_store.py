@@ -154,13 +154,6 @@ class RunStore:
         """One PUT: on an object store a reader sees the old object or the new one whole."""
         self.fs.pipe_file(self.key(relative), text.encode("utf-8"))
 
-    def get_file(self, relative: str, local: Path) -> None:
-        """Download to `local` through a temporary name, so a reader never sees half a file."""
-        local.parent.mkdir(parents=True, exist_ok=True)
-        temporary = local.with_name(f".{local.name}.part-{os.getpid()}")
-        self.fs.get_file(self.key(relative), str(temporary))
-        os.replace(temporary, local)
-
     def read_text(self, relative: str) -> str | None:
         try:
             return self.fs.cat_file(self.key(relative)).decode("utf-8")

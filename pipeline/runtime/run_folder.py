@@ -191,6 +191,13 @@ class RunFolder:
             raise KeyError(f"{marker.stage}/{marker.unit} committed no {relative}")
         return self.store.url_of(metadata.rsplit("/", 1)[0])
 
+    def committed_part(self, stage: str, unit: str, dataset: str) -> str | None:
+        """Where the part of `dataset` that `stage`/`unit` committed is read (see `committed_location`);
+        None when the unit has no marker or wrote no such part."""
+        relative = f"{dataset}/part-{unit}.parquet"
+        marker = self.marker(stage, unit)
+        return self.committed_location(marker, relative) if marker is not None and relative in marker.outputs else None
+
     # --------------------------------------------------------------------------------- markers
     def marker_path(self, stage: str, unit: str) -> Path:
         return marker_files.marker_path(self.root, stage, unit)
