@@ -109,12 +109,17 @@ def list_videos(run: Any) -> list[tuple[str, str]]:
     return sorted(zip(table.column("embodiment").to_pylist(), table.column("video_name").to_pylist()))
 
 
-def _resolve_embodiment(run: Any, name: str, embodiment: str | None) -> str:
+# The committing unit's (stage, marker) of one video by embodiment, as looked up once per `load_video`
+# (resolving the embodiment and opening the store ask the same; on a store each ask is a listing and GETs).
+_Found = dict[str, "tuple[str, Marker] | None"]
+
+
+def _resolve_embodiment(run: Any, name: str, embodiment: str | None, found_markers: _Found) -> str:
     """The embodiment of the stored video `name`. Only a plain name (letters, digits, `_`, `-`, inner dots)
     is looked up, so `../x`, `e/v` or an absolute name finds nothing and nothing outside the run is touched."""
     root = run_root(run)
     hint = f"`mvpd query {root} \"select embodiment, video_name from videos\"` lists them"
-    found = _video_embodiments(root, name, embodiment)
+    found = _video_embodiments(root, name, embodiment, found_markers)
     if embodiment is not None:
         if embodiment not in found:
             raise VideoNotFoundError(f"{root}: no video {name!r} of embodiment {embodiment!r}; {hint}")
@@ -126,7 +131,7 @@ def _resolve_embodiment(run: Any, name: str, embodiment: str | None) -> str:
     return found[0]
 
 
-def _video_embodiments(root: Path, name: str, embodiment: str | None) -> list[str]:
+def _video_embodiments(root: Path, name: str, embodiment: str | None, found_markers: _Found) -> list[str]:
     """Embodiments (all, or just `embodiment`) holding a store for video `name`, without listing the videos
     (a run holds 18,000): on local disk one stat per embodiment; on object storage the committing unit's
     marker (a GET each) of the job's embodiments. Names that are not plain never reach a file system."""
@@ -134,7 +139,7 @@ def _video_embodiments(root: Path, name: str, embodiment: str | None) -> list[st
         return []
     if store_of(root) is not None:
         candidates = [embodiment] if embodiment is not None else [e.name for e in RunFolder(root).job().embodiments]
-        return [e for e in candidates if _video_marker(root, e, name) is not None]
+        return [e for e in candidates if _video_marker(root, e, name, found_markers) is not None]
     videos = root / "videos"
     if not videos.is_dir():
         return []
@@ -142,14 +147,18 @@ def _video_embodiments(root: Path, name: str, embodiment: str | None) -> list[st
     return [e for e in candidates if (videos / e / f"{name}.zarr").is_dir()]
 
 
-def _video_marker(root: Path, embodiment: str, name: str) -> tuple[str, Marker] | None:
+def _video_marker(root: Path, embodiment: str, name: str, found_markers: _Found) -> tuple[str, Marker] | None:
     """The stage and marker of the unit that committed video `embodiment/name` (render's unit ids, import's)."""
+    if embodiment in found_markers:
+        return found_markers[embodiment]
     store = f"videos/{embodiment}/{name}.zarr"
+    found_markers[embodiment] = None
     for stage in stages_writing(root, "videos"):
         for unit in (f"{embodiment}.{name}", name):
             marker = unit_marker(root, stage, unit)
             if marker is not None and store in marker.outputs:
-                return stage, marker
+                found_markers[embodiment] = stage, marker
+                return found_markers[embodiment]
     return None
 
 
@@ -174,11 +183,11 @@ def video_locations(run: Any) -> dict[tuple[str, str], str]:
     return found
 
 
-def _committed_store(root: Path, embodiment: str, name: str) -> str:
+def _committed_store(root: Path, embodiment: str, name: str, found_markers: _Found) -> str:
     """Where video `embodiment/name` is read (its local path or its URL on the store); refuses a video
     whose committing unit's files are damaged (a lost shard would read as zeros)."""
     relative = f"videos/{embodiment}/{name}.zarr"
-    found = _video_marker(root, embodiment, name)
+    found = _video_marker(root, embodiment, name, found_markers)
     if found is None:
         return str(root / relative)  # a store written outside the commit protocol (an old run): as it is
     stage, marker = found
@@ -211,12 +220,13 @@ def load_video(run: Any, name: str, embodiment: str | None = None, split: str | 
     several embodiments rendered a video of that name; with `split`, a video the split rejected (empty,
     or zero-shot in train) or that is in another split is not found."""
     root = run_root(run)
-    embodiment = _resolve_embodiment(root, name, embodiment)
+    found_markers: _Found = {}
+    embodiment = _resolve_embodiment(root, name, embodiment, found_markers)
     accepted = _split_videos(root, split)
     if accepted is not None and (embodiment, name) not in accepted:
         raise VideoNotFoundError(f"{root}: video {embodiment}/{name} is not an accepted video of split {split!r} "
                                  f"(`mvpd query {root} \"select * from splits where video_name = '{name}'\"` says why)")
-    video = open_video(_committed_store(root, embodiment, name))
+    video = open_video(_committed_store(root, embodiment, name, found_markers))
     attributes = video.attrs
     categories = {int(k): int(v) for k, v in attributes.get("object_categories", {}).items()}
     table_categories, raw_names = _object_names(root, str(attributes.get("scene_id", "")))
