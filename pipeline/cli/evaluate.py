@@ -7,8 +7,10 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+from rich.markup import escape
 
 from pipeline.cli.console import EXIT_BAD_INPUT, EXIT_FAILED, console, fail, print_table, stage_progress
+from pipeline.cli.out_paths import check_out_file, check_out_location
 from pipeline.cli.run_commands import EXECUTOR_HELP, ExecutorChoice
 from pipeline.config import ConfigError
 from pipeline.runtime.executor import StageOrderError
@@ -53,6 +55,10 @@ def register(app: typer.Typer) -> None:
             fail("give either a RUN folder or --gt-mvpd ROOT --split SPLIT (not both)")
         if gt_mvpd is not None and (split is None or out is None):
             fail("--gt-mvpd needs --split SPLIT and --out FILE.json")
+        if out is not None:
+            out = check_out_file(out)
+        if work is not None:
+            work = check_out_location(work, "--work")
         overrides = {"ks": sorted(set(k)) if k else None, "window": window, "stride": stride,
                      "min_area_fraction": min_area_fraction, "subsample": subsample}
         try:
@@ -75,7 +81,7 @@ def register(app: typer.Typer) -> None:
             if info["missing_frames"]:
                 console.print(f"[yellow]{video}: {info['missing_frames']} prediction frames missing, counted as empty[/]")
         for outcome in result.failed:
-            console.print(f"[red]x[/] {outcome.unit}: {outcome.error_type}: {outcome.message}", soft_wrap=True)
+            console.print(f"[red]x[/] {outcome.unit}: {outcome.error_type}: {escape(outcome.message)}", soft_wrap=True)
         print_table(summary_table(result))
         if out is not None:
             write_json(result, out)

@@ -3,12 +3,14 @@
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
 from pipeline.cli.console import EXIT_FAILED, console, fail, stage_progress
+from pipeline.cli.out_paths import check_out_location, out_folder
 from pipeline.config import ConfigError
 from pipeline.runtime.lock import RunLockedError
 from pipeline.runtime.run_folder import RunFolderError
@@ -18,8 +20,10 @@ def _input_errors() -> tuple[type[Exception], ...]:
     from pipeline.evaluate.errors import EvaluationInputError
     from pipeline.models.predict import PredictionInputError
     from pipeline.models.segmenter import ModelError
+    from pipeline.split.selection import UnknownSplitError
 
-    return (ModelError, PredictionInputError, EvaluationInputError, ConfigError, RunFolderError, RunLockedError)
+    return (ModelError, PredictionInputError, EvaluationInputError, ConfigError, RunFolderError, RunLockedError,
+            UnknownSplitError)
 
 
 def split_videos(run: Path, split: str | None) -> list[str] | None:
@@ -78,7 +82,7 @@ def register(app: typer.Typer) -> None:
                 config = config.model_copy(update={"self_prompting": True})
             videos = split_videos(run, split)
             with stage_progress() as observer:
-                report = predict_run(run, out, config, embodiment, videos, split if videos is not None else NO_SPLIT,
+                report = predict_run(run, check_out_location(out), config, embodiment, videos, split if videos is not None else NO_SPLIT,
                                      force=all_videos, address=address, on_start=observer.on_stage_start,
                                      on_unit=observer.on_unit)
                 if observer.on_stage_end is not None:
@@ -102,12 +106,13 @@ def register(app: typer.Typer) -> None:
         from pipeline.models.predict import NO_SPLIT
         from pipeline.models.report import ReportError, write_model_report
 
+        specs = [m.strip() for m in models.split(",") if m.strip()]
         try:
             videos = split_videos(run, split)
-            with stage_progress() as observer:
-                path = write_model_report(run, [m.strip() for m in models.split(",") if m.strip()], out, embodiment,
-                                          videos, split if videos is not None else NO_SPLIT, address=address,
-                                          observer=observer)
+            with out_folder(out, "mvpd report") if out is not None else nullcontext(None) as target, \
+                    stage_progress() as observer:
+                path = write_model_report(run, specs, target, embodiment, videos,
+                                          split if videos is not None else NO_SPLIT, address=address, observer=observer)
         except _input_errors() as error:
             fail(str(error))
         except ReportError as error:

@@ -8,8 +8,10 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from pipeline.cli.out_paths import OutPathError, out_folder
 from pipeline.cli.run_commands import EXECUTOR_HELP, ExecutorChoice
 from pipeline.config import ConfigError
 from pipeline.io.mvpd import (MvpdExportError, MvpdFormatError, MvpdImportError, export_release, export_release_splits,
@@ -17,7 +19,9 @@ from pipeline.io.mvpd import (MvpdExportError, MvpdFormatError, MvpdImportError,
 from pipeline.runtime.lock import RunLockedError
 from pipeline.runtime.run_folder import RunFolder, RunFolderError
 
-USAGE_ERRORS = (MvpdFormatError, MvpdExportError, MvpdImportError, ConfigError, RunFolderError, RunLockedError)
+EXPORT = "mvpd export"
+USAGE_ERRORS = (MvpdFormatError, MvpdExportError, MvpdImportError, ConfigError, RunFolderError, RunLockedError,
+                OutPathError)
 
 
 def register(app: typer.Typer) -> None:
@@ -74,16 +78,16 @@ def export_command(
         _training_export(run_dir, coco, yolo, mvpd, every, categories, drop_stuff, embodiment, overwrite)
         return
     try:
-        with _video_progress("export") as (on_start, on_video):
+        with out_folder(mvpd, EXPORT, "--mvpd") as root, _video_progress("export") as (on_start, on_video):
             if split is None and has_split(run_dir):
-                summaries = export_release_splits(run_dir, mvpd, embodiment, overwrite, on_video=on_video, on_start=on_start)
+                summaries = export_release_splits(run_dir, root, embodiment, overwrite, on_video=on_video, on_start=on_start)
             else:
-                summaries = [export_release(run_dir, mvpd, split or "test", embodiment, overwrite, on_video=on_video,
+                summaries = [export_release(run_dir, root, split or "test", embodiment, overwrite, on_video=on_video,
                                             on_start=on_start)]
     except USAGE_ERRORS as error:
         fail(str(error))
     for warning in dict.fromkeys(w for summary in summaries for w in summary.warnings):
-        console.print(f"[yellow]warning:[/] {warning}", soft_wrap=True)
+        console.print(f"[yellow]warning:[/] {escape(warning)}", soft_wrap=True)
     for summary in summaries:
         rejected = f", {len(summary.rejected)} rejected" if summary.rejected else ""
         console.print(f"export: {summary.videos} videos, {summary.frames} frames{rejected} -> {summary.split_folder} "
@@ -102,15 +106,15 @@ def _training_export(run_dir: Path, coco: Optional[Path], yolo: Optional[Path], 
     if sum(target is not None for target in (mvpd, coco, yolo)) != 1:
         fail("give exactly one of --mvpd, --coco or --yolo")
     from pipeline.split.selection import accepted_videos
-    out, exporter = (coco, CocoExporter) if coco is not None else (yolo, YoloExporter)
+    out, exporter, option = (coco, CocoExporter, "--coco") if coco is not None else (yolo, YoloExporter, "--yolo")
     options = ExportOptions(every, categories, drop_stuff, embodiment, overwrite)  # type: ignore[arg-type]
     try:
         RunFolder.open(run_dir)
         splits = run_splits(lambda name: accepted_videos(run_dir, name))
         has_split = splits is not None
         splits = splits if splits is not None else unsplit(run_dir)
-        with _video_progress("export") as (on_start, on_video):
-            summary = export_training_data(run_dir, out, splits, exporter, options, on_start=on_start,
+        with out_folder(out, EXPORT, option) as folder, _video_progress("export") as (on_start, on_video):
+            summary = export_training_data(run_dir, folder, splits, exporter, options, on_start=on_start,
                                            on_video=on_video)
     except (TrainingExportError, *USAGE_ERRORS) as error:
         fail(str(error))

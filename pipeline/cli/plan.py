@@ -6,8 +6,10 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from pipeline.cli.console import HELP_SETTINGS, FullHelpGroup, print_table
+from pipeline.cli.out_paths import check_out_file
 
 console = Console()
 plan_app = typer.Typer(cls=FullHelpGroup, rich_markup_mode=None, context_settings=HELP_SETTINGS, no_args_is_help=True,
@@ -30,9 +32,9 @@ def preview(
     from pipeline.scenes.scene import SceneError
 
     try:
-        written = write_plan_preview(RunFolder.open(run), scene, out, embodiment, size)
+        written = write_plan_preview(RunFolder.open(run), scene, check_out_file(out), embodiment, size)
     except (PlanPreviewError, RunFolderError, ConfigError, SceneError, NavigableAreaError) as error:
-        console.print(f"[red]error:[/red] {error}", highlight=False, soft_wrap=True)
+        console.print(f"[red]error:[/red] {escape(str(error))}", highlight=False, soft_wrap=True)
         raise typer.Exit(2) from None
     console.print(f"wrote {written.path}: {written.paths} paths of {written.embodiment}, "
                   f"{written.area_m2:.1f} m² navigable in {written.islands} islands", highlight=False, soft_wrap=True)
@@ -52,7 +54,7 @@ def report(
     try:
         reports = plan_reports(RunFolder.open(run))
     except RunFolderError as error:
-        console.print(f"[red]error:[/red] {error}", highlight=False, soft_wrap=True)
+        console.print(f"[red]error:[/red] {escape(str(error))}", highlight=False, soft_wrap=True)
         raise typer.Exit(2) from None
     shown = [r for r in reports if r.status != "planned"] if only_problems else reports
     table = Table("unit", "status", "paths", "draws", "rejected", "navigable m²", "islands", "reason")

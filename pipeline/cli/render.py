@@ -9,6 +9,7 @@ from typing import Annotated, Optional
 import typer
 
 from pipeline.cli.console import console, fail
+from pipeline.cli.out_paths import out_folder
 from pipeline.io.reader import VideoNotFoundError
 from pipeline.io.zarr_video import ZARR_SCHEMA_VERSION
 from pipeline.runtime.run_folder import RunFolder, RunFolderError
@@ -39,12 +40,12 @@ def preview(
     from pipeline.render.preview import write_preview
 
     try:
-        folder = RunFolder.open(run)
-        loaded = load_video(folder, video, embodiment)
-        if loaded.attributes.get("schema_version") != ZARR_SCHEMA_VERSION:
-            fail(f"{loaded.path}/zarr.json: schema_version {loaded.attributes.get('schema_version')} is not "
-                 f"{ZARR_SCHEMA_VERSION}; re-render it with this version (`mvpd rerun {run} --stage render --all`)")
-        files = write_preview(loaded, out, rows=rows, animation=format.value)
+        with out_folder(out, "mvpd preview") as target:
+            loaded = load_video(RunFolder.open(run), video, embodiment)
+            if loaded.attributes.get("schema_version") != ZARR_SCHEMA_VERSION:
+                fail(f"{loaded.path}/zarr.json: schema_version {loaded.attributes.get('schema_version')} is not "
+                     f"{ZARR_SCHEMA_VERSION}; re-render it with this version (`mvpd rerun {run} --stage render --all`)")
+            files = write_preview(loaded, target, rows=rows, animation=format.value)
     except (RunFolderError, VideoNotFoundError) as error:
         fail(str(error))
     except OSError as error:

@@ -8,6 +8,7 @@ from typing import Annotated, Optional
 import typer
 
 from pipeline.cli.console import console, fail
+from pipeline.cli.out_paths import check_out_file
 
 
 def register(app: typer.Typer) -> None:
@@ -33,7 +34,7 @@ def view(
     from pipeline.runtime.run_folder import RunFolder, RunFolderError
     from pipeline.scenes.scene import SceneError
 
-    target = out if out is not None else Path(f"{video}.rrd")
+    target = check_out_file(out if out is not None else Path(f"{video}.rrd"))
     try:
         root = RunFolder.open(run).root
         with Progress(TextColumn("view"), BarColumn(), MofNCompleteColumn(), console=console, transient=True) as progress:

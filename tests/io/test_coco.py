@@ -160,7 +160,8 @@ def test_cli_bad_input_is_one_line_exit_2_and_writes_nothing(tiny_run: RunFolder
     assert not out.exists()
 
 
-def test_cli_refuses_a_file_or_a_non_empty_folder_without_overwrite(tiny_run: RunFolder, tmp_path: Path) -> None:
+def test_cli_refuses_a_file_a_foreign_folder_and_its_own_export_without_overwrite(tiny_run: RunFolder,
+                                                                                   tmp_path: Path) -> None:
     a_file = tmp_path / "out.json"
     a_file.write_text("{}")
     result = cli(str(tiny_run.root), "--coco", str(a_file))
@@ -168,12 +169,17 @@ def test_cli_refuses_a_file_or_a_non_empty_folder_without_overwrite(tiny_run: Ru
     folder = tmp_path / "taken"
     folder.mkdir()
     (folder / "notes.txt").write_text("mine")
-    result = cli(str(tiny_run.root), "--coco", str(folder), "--embodiment", "ambient", "--every", "6")
-    assert result.exit_code == 2 and "--overwrite" in result.output
-    assert [p.name for p in folder.iterdir()] == ["notes.txt"]
-    result = cli(str(tiny_run.root), "--coco", str(folder), "--embodiment", "ambient", "--every", "6", "--overwrite")
+    for extra in ([], ["--overwrite"]):  # a folder export did not write is never written into
+        result = cli(str(tiny_run.root), "--coco", str(folder), "--embodiment", "ambient", "--every", "6", *extra)
+        assert result.exit_code == 2 and "was not written by `mvpd export`" in result.output, result.output
+        assert [p.name for p in folder.iterdir()] == ["notes.txt"]
+    ours = tmp_path / "coco"
+    assert cli(str(tiny_run.root), "--coco", str(ours), "--embodiment", "ambient", "--every", "6").exit_code == 0
+    result = cli(str(tiny_run.root), "--coco", str(ours), "--embodiment", "ambient", "--every", "6")
+    assert result.exit_code == 2 and "--overwrite" in result.output  # its own export: replaced only when asked
+    result = cli(str(tiny_run.root), "--coco", str(ours), "--embodiment", "ambient", "--every", "6", "--overwrite")
     assert result.exit_code == 0, result.output
-    assert sorted(p.name for p in folder.iterdir()) == ["annotations", "images", "notes.txt"]  # the user's file stays
+    assert sorted(p.name for p in ours.iterdir()) == [".mvpd-out", "annotations", "images"]
 
 
 def test_cli_wants_exactly_one_target(tiny_run: RunFolder, tmp_path: Path) -> None:

@@ -139,5 +139,5 @@ def test_cli_writes_the_yolo_layout(tiny_run: RunFolder, tmp_path: Path) -> None
                                       "--categories", "mpcat40"])
     assert result.exit_code == 0, result.output
     assert "4 frames (all 4)" in result.output  # 4 videos, frame 0 of each
-    assert sorted(p.name for p in out.iterdir()) == ["data.yaml", "images", "labels"]
+    assert sorted(p.name for p in out.iterdir()) == [".mvpd-out", "data.yaml", "images", "labels"]  # tag: export wrote it
     assert len(yaml.safe_load((out / "data.yaml").read_text())["names"]) == 41

@@ -120,7 +120,7 @@ def test_exported_split_files_load_back_to_the_same_flags(run: RunFolder, tmp_pa
     result = invoke("export", run.root, "--mvpd", root)  # two embodiments: ambient + its 20 W copy
     assert result.exit_code == 0, result.output
     assert result.output.count("export:") == 3 and sorted(p.name for p in root.iterdir()) == [
-        "test", "test.txt", "train", "train.txt", "val", "val.txt"]
+        ".mvpd-out", "test", "test.txt", "train", "train.txt", "val", "val.txt"]  # .mvpd-out: export wrote it
     assert result.output.count("warning:") == 1  # camera not MVPd's 640x480 / 69 degrees: the authors' loader hard-codes it
     assert export_release_splits(run.root, tmp_path / "again")[0].warnings
     for split in ("train", "val", "test"):
