@@ -11,11 +11,13 @@ from typing import Iterator, NoReturn
 import click
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.measure import Measurement
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 from typer.core import TyperGroup
 
+from pipeline.cli.out_paths import OutPathError
 from pipeline.runtime.executor import StagePlan, StageReport
 from pipeline.runtime.ray_session import got_sigterm
 from pipeline.runtime.run_folder import is_plain_name
@@ -27,6 +29,7 @@ errors = Console(stderr=True, highlight=False)
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 EXIT_TERMINATED = 128 + signal.SIGTERM  # the shell's convention for "killed by SIGTERM"
+EXIT_INTERRUPTED = 128 + signal.SIGINT
 # Plain (click) help everywhere (`rich_markup_mode=None` on each Typer): option texts in full however long,
 # `[default: ...]` kept literally (rich markup would eat it as a tag), flags shown as flags, `-h` as `--help`.
 HELP_SETTINGS = {"help_option_names": ["-h", "--help"], "show_default": True}
@@ -47,8 +50,9 @@ class FullHelpGroup(TyperGroup):
                 formatter.write_dl(rows)
 
     def invoke(self, ctx: click.Context) -> object:
-        """Run the command; SIGTERM stops it like Ctrl-C (context managers unwind, the run lock is
-        released) and exits 143 with one line instead of a stack dump."""
+        """Run the command; SIGTERM and Ctrl-C stop it (context managers unwind, the run lock is released)
+        and exit 143 or 130 with one line instead of a stack dump; an --out that must not be written to is
+        refused in one line (exit 2)."""
         try:
             return super().invoke(ctx)
         except SystemExit as exit_:  # ray.init's own SIGTERM handler (active while Ray starts) calls sys.exit(15)
@@ -56,9 +60,11 @@ class FullHelpGroup(TyperGroup):
                 raise
             terminated()
         except KeyboardInterrupt:  # DriverTerminated, or the KeyboardInterrupt Ray made of it
-            if not got_sigterm():
-                raise
-            terminated()
+            if got_sigterm():
+                terminated()
+            interrupted()
+        except OutPathError as error:
+            fail(str(error))
 
 
 def terminated() -> NoReturn:
@@ -68,9 +74,16 @@ def terminated() -> NoReturn:
     raise typer.Exit(EXIT_TERMINATED)
 
 
+def interrupted() -> NoReturn:
+    """Stop after Ctrl-C (SIGINT): one line on stderr, exit 130."""
+    errors.print("stopped: interrupted (Ctrl-C); finished work is kept, run the same command again to go on",
+                 soft_wrap=True)
+    raise typer.Exit(EXIT_INTERRUPTED)
+
+
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
     """Print a one-line error and exit (2 = unusable input)."""
-    errors.print(f"[bold red]error:[/] {message}", soft_wrap=True)
+    errors.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)
     raise typer.Exit(code)
 
 
@@ -106,7 +119,7 @@ def stage_progress() -> Iterator[Observer]:
 def _print_stage_end(report: StageReport) -> None:
     console.print(("[red]" if report.failed else "[green]") + report.summary(), soft_wrap=True)
     for outcome in report.failed:
-        console.print(f"  [red]x[/] {outcome.unit}: {outcome.error_type}: {outcome.message}", soft_wrap=True)
+        console.print(f"  [red]x[/] {outcome.unit}: {outcome.error_type}: {escape(outcome.message)}", soft_wrap=True)
 
 
 @contextmanager

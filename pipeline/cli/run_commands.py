@@ -7,12 +7,14 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, print_table, stage_progress
+from pipeline.cli.out_paths import check_out_file
 from pipeline.config import ConfigError, Job, load_job
 from pipeline.io.dataset_stats import COMPARISON_COLUMNS, SPLIT_ROWS, StatsError, dataset_stats, write_stats_picture
-from pipeline.io.query import QueryError, query, write_result
+from pipeline.io.query import DEFAULT_TIMEOUT_S, QueryError, QueryTimeout, query, result_table, write_result
 from pipeline.runtime.executor import StageOrderError, StagePlan
 from pipeline.runtime.lock import RunLockedError
 from pipeline.runtime.run_folder import RunFolder, RunFolderError
@@ -190,9 +192,12 @@ def status(
                       str(len(stage.pending)) + (f" ({stage.waiting_for})" if stage.waiting_for else ""))
     print_table(table)
     for stage in state.stages:
+        if stage.unlisted:
+            console.print(f"[yellow]{stage.stage}[/]: its units cannot be listed from the run as it is "
+                          f"({escape(stage.unlisted)}); shown are the units it recorded", soft_wrap=True)
         for outcome in stage.failed:
             console.print(f"[red]{stage.stage}/{outcome.unit}[/] attempt {outcome.attempt}: "
-                          f"{outcome.error_type}: {outcome.message} (log: {outcome.log_path})", soft_wrap=True)
+                          f"{outcome.error_type}: {escape(outcome.message)} (log: {outcome.log_path})", soft_wrap=True)
         for unit, problems in sorted(stage.damaged.items()):
             more = f" (and {len(problems) - 1} more files)" if len(problems) > 1 else ""
             console.print(f"[red]{stage.stage}/{unit}[/] damaged: {problems[0].path} {problems[0].problem}{more}; "
@@ -223,17 +228,22 @@ def query_command(
     sql: Annotated[str, typer.Argument(help='SQL; every Parquet dataset is a table, e.g. "select * from scenes"')],
     fmt: Annotated[OutputFormat, typer.Option("--format", help="output format")] = OutputFormat.table,
     out: Annotated[Optional[Path], typer.Option(help="write the result to this file [default: standard output]")] = None,
+    timeout: Annotated[float, typer.Option(min=0, help="stop the query after this many seconds (0: no limit)")] = DEFAULT_TIMEOUT_S,
 ) -> None:
     """Query the run's Parquet metadata with SQL (DuckDB)."""
+    target = check_out_file(out) if out is not None else None
     try:
-        relation = query(RunFolder.open(run_dir), sql)
+        relation = query(RunFolder.open(run_dir), sql, timeout)
         if fmt is OutputFormat.table:
-            table = Table(*relation.columns)
-            for row in relation.fetchall():
+            result = result_table(relation)
+            table = Table(*result.column_names)
+            for row in zip(*(column.to_pylist() for column in result.columns)):
                 table.add_row(*[_cell(v) for v in row])
             print_table(table)
             return
-        text = write_result(relation, fmt.value, out)
+        text = write_result(relation, fmt.value, target)
+    except QueryTimeout as error:
+        fail(str(error), EXIT_FAILED)
     except USAGE_ERRORS as error:
         fail(str(error))
     if text is not None:
@@ -255,9 +265,10 @@ def stats(
 ) -> None:
     """Dataset statistics: scenes, videos, frames, masks and objects per embodiment and per category."""
     try:
+        target = check_out_file(out) if out is not None else None
         folder = RunFolder.open(run_dir)
         found = dataset_stats(folder)
-        picture = write_stats_picture(folder, found, out, top=max(top, 30)) if out else None
+        picture = write_stats_picture(folder, found, target, top=max(top, 30)) if target else None
     except USAGE_ERRORS as error:
         fail(str(error))
     except OSError as error:

@@ -16,13 +16,18 @@ registered with DuckDB (no httpfs extension is installed or loaded; the allowed 
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import logging
 import math
+import threading
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
 import duckdb
+import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline.io.tables import damage_line, trusted_parts_of
@@ -124,19 +129,63 @@ def check_read_only(sql: str) -> None:
                          f"{kind.name} statement; `mvpd query` never changes the run or touches other files")
 
 
-def query(run: RunFolder, sql: str) -> duckdb.DuckDBPyRelation:
+DEFAULT_TIMEOUT_S = 600.0
+
+
+class QueryTimeout(QueryError):
+    """The query ran longer than its timeout and was stopped."""
+
+
+def query(run: RunFolder, sql: str, timeout_s: float | None = DEFAULT_TIMEOUT_S) -> duckdb.DuckDBPyRelation:
     """Run one read-only `sql` statement against the run's datasets; the result is materialised, so every
-    DuckDB error surfaces here as a one-line QueryError."""
+    DuckDB error surfaces here as a one-line QueryError.
+
+    DuckDB runs the statement in a thread of its own while this thread waits, so that a timeout (None or
+    0: none) or a signal (Ctrl-C, or SIGTERM through the CLI's handler) is noticed at once and interrupts
+    DuckDB: a Python signal handler runs only in the main thread, and only between bytecodes, never while
+    DuckDB's C++ holds the main thread.
+    """
     check_read_only(sql)
+    connection = connect(run)
+    outcome: dict[str, object] = {}
+
+    def execute() -> None:
+        try:
+            outcome["result"] = connection.sql(sql).materialize()
+        except Exception as error:  # handed to the waiting thread, which raises it
+            outcome["error"] = error
+
+    worker = threading.Thread(target=execute, name="mvpd-query", daemon=True)
+    deadline = time.monotonic() + timeout_s if timeout_s else math.inf
+    worker.start()
     try:
-        return connect(run).sql(sql).materialize()
-    except duckdb.Error as error:
-        known = ", ".join(run.datasets()) or "none yet"
-        raise QueryError(f"{_first_line(error)} (tables in {run.root}: {known})") from None
+        while worker.is_alive() and time.monotonic() < deadline:
+            worker.join(0.05)  # a short wait: signal handlers run between waits
+    finally:
+        if worker.is_alive():  # timed out, or a signal raised here: stop DuckDB before leaving
+            connection.interrupt()
+            worker.join()
+    error = outcome.get("error")
+    if error is None:
+        return outcome["result"]  # type: ignore[return-value]
+    if isinstance(error, duckdb.InterruptException):
+        raise QueryTimeout(f"the query ran longer than {timeout_s:g} s and was stopped; narrow it, "
+                           "or give a longer --timeout (0: none)")
+    if not isinstance(error, duckdb.Error):
+        raise error  # type: ignore[misc]
+    known = ", ".join(run.datasets()) or "none yet"
+    raise QueryError(f"{_first_line(error)} (tables in {run.root}: {known})")
 
 
 def _first_line(error: Exception) -> str:
     return (str(error).strip().splitlines() or [type(error).__name__])[0]
+
+
+def result_table(relation: duckdb.DuckDBPyRelation) -> pa.Table:
+    """A result as an Arrow table: every output format converts from it, so values become Python objects
+    in one way (time zones through zoneinfo, never pytz, which DuckDB's own row fetch may ask for)."""
+    table = relation.arrow()
+    return table.read_all() if hasattr(table, "read_all") else table  # DuckDB >= 1.4 returns a RecordBatchReader
 
 
 def write_result(relation: duckdb.DuckDBPyRelation, fmt: str, out: Path | None) -> str | None:
@@ -145,22 +194,20 @@ def write_result(relation: duckdb.DuckDBPyRelation, fmt: str, out: Path | None) 
     JSON is a list of row objects with numbers as JSON numbers (NaN and infinities as null), one
     trailing newline.
     """
-    table = relation.arrow()
-    if hasattr(table, "read_all"):  # DuckDB >= 1.4 returns a RecordBatchReader
-        table = table.read_all()
+    table = result_table(relation)
     if fmt == "parquet":
         if out is None:
             raise QueryError("--format parquet needs --out FILE.parquet")
         pq.write_table(table, out)
         return None
     if fmt == "csv":
-        import io
-
-        import pyarrow.csv as pacsv
-
-        buffer = io.BytesIO()
-        pacsv.write_csv(table, buffer)
-        text = buffer.getvalue().decode()
+        # Python's csv quotes only where a value needs it, as DuckDB's own CSV does (Arrow's writer quotes
+        # every string), so `tail -1` in a shell gives plain values.
+        buffer = io.StringIO()
+        writer = csv.writer(buffer, lineterminator="\n")
+        writer.writerow(table.column_names)
+        writer.writerows([_csv_value(v) for v in row] for row in zip(*(c.to_pylist() for c in table.columns)))
+        text = buffer.getvalue()
     else:
         rows = [{key: _json_value(value) for key, value in row.items()} for row in table.to_pylist()]
         text = json.dumps(rows, indent=1, allow_nan=False) + "\n"
@@ -168,6 +215,15 @@ def write_result(relation: duckdb.DuckDBPyRelation, fmt: str, out: Path | None) 
         out.write_text(text)
         return None
     return text
+
+
+def _csv_value(value: object) -> object:
+    """A CSV cell: booleans as SQL writes them (true/false), nested values as JSON, the rest as csv writes it."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, dict)):
+        return json.dumps(_json_value(value))
+    return value
 
 
 def _json_value(value: object) -> object:
