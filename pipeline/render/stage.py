@@ -51,6 +51,7 @@ class RgbdRenderer(Stage):
     name = "render"
     after = ("plan",)
     datasets = ("videos", "frame_stats", "segments")
+    when_empty = "no trajectory was planned; `mvpd plan report RUN` says why for each scene"
 
     def __init__(self, job: Job):
         super().__init__(job)

@@ -135,21 +135,31 @@ def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[s
 
 def _collect(ref: object, stage: Stage, unit: Unit, attempt: int, run: RunFolder) -> UnitOutcome:
     import ray
-    from ray.exceptions import RayError
+    from ray.exceptions import NodeDiedError, OutOfMemoryError, RayError, WorkerCrashedError
 
     try:
         outcome = ray.get(ref)
-    except RayError as error:  # the worker died more often than max_retries, or the task was lost
+    except RayError as error:  # the worker died more often than max_retries, or Ray could not run the task
         message = " ".join(str(error).split())[:300]
-        return UnitOutcome(stage.name, unit.id, "failed", attempt + stage.job.runtime.max_retries,
+        # Only a lost worker or node is retried by Ray (max_retries times); any other failure (a runtime
+        # env or an argument that could not be set up, a cancelled task) ended the first try.
+        retried = isinstance(error, (WorkerCrashedError, OutOfMemoryError, NodeDiedError))
+        if retried:
+            _record_worker_deaths(ref, stage, unit, attempt, run)
+        return UnitOutcome(stage.name, unit.id, "failed", attempt + (stage.job.runtime.max_retries if retried else 0),
                            type(error).__name__, message, str(run.log_path(stage.name, unit.id).relative_to(run.root)))
     if outcome.attempt > attempt:
-        for retry, reason in worker_deaths(ref):
-            line = f"attempt {attempt + retry} ended because its Ray worker {reason}"
-            append_to_unit_log(run, stage.name, unit.id, line)
-            log.warning("%s/%s: %s (full text in %s)", stage.name, unit.id, line[:160],
-                        run.log_path(stage.name, unit.id).relative_to(run.root))
+        _record_worker_deaths(ref, stage, unit, attempt, run)
     return outcome
+
+
+def _record_worker_deaths(ref: object, stage: Stage, unit: Unit, attempt: int, run: RunFolder) -> None:
+    """Say in the unit's log (and the driver's) why each dead attempt's worker died."""
+    for retry, reason in worker_deaths(ref):
+        line = f"attempt {attempt + retry} ended because its Ray worker {reason}"
+        append_to_unit_log(run, stage.name, unit.id, line)
+        log.warning("%s/%s: %s (full text in %s)", stage.name, unit.id, line[:160],
+                    run.log_path(stage.name, unit.id).relative_to(run.root))
 
 
 def worker_deaths(ref: object, wait_s: float = 3.0) -> list[tuple[int, str]]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from pipeline.config import ConfigError
 from pipeline.runtime.executor import StageOrderError, plan_stage
 from pipeline.runtime.markers import Damage, marked_stages, unit_damage
 from pipeline.runtime.run_folder import RunFolder
@@ -28,6 +29,7 @@ class StageState:
     pending: list[str] = field(default_factory=list)
     damaged: dict[str, list[Damage]] = field(default_factory=dict)
     waiting_for: str = ""
+    unlisted: str = ""  # why the stage's units cannot be listed now (the run's tables as they are); else ""
 
     @property
     def total(self) -> int:
@@ -74,6 +76,10 @@ def _state(run: RunFolder, stage: Stage, statuses: dict[tuple[str, str], UnitOut
         plan = plan_stage(stage, run)
     except StageOrderError:
         state.waiting_for = "waiting for " + ", ".join(stage.after)
+        return state
+    except ConfigError as error:  # e.g. a split of the scenes left after damage: show what was recorded
+        state = _recorded_state(run, stage.name, statuses)
+        state.unlisted = str(error)
         return state
     markers = run.markers(stage.name)
     state.done = sorted(plan.up_to_date)

@@ -114,7 +114,9 @@ class RunFolder:
         run = cls(root)
         if run.store is not None:
             run._check_store()
-            if not run.store.exists(JOB_FILE) and run.store.exists(""):
+            # A run's first key is its lock (`_state/`): a driver starting beside another finds the lock, not
+            # a foreign folder, and is told who holds it.
+            if not run.store.exists(JOB_FILE) and not run.store.exists(STATE) and run.store.exists(""):
                 raise RunFolderError(f"{run.location}: exists, is not empty and has no {JOB_FILE}; "
                                      "choose an empty or new prefix")
             run._fetch_job()
@@ -161,6 +163,9 @@ class RunFolder:
         try:
             data = yaml.safe_load((self.root / JOB_FILE).read_text())
             return job_from_resolved(data["job"])
+        except yaml.YAMLError as error:
+            raise ConfigError(f"{self.root / JOB_FILE}: not valid YAML ({' '.join(str(error).split())}); "
+                              "resubmit the job") from None
         except (KeyError, TypeError, ValueError) as error:
             raise ConfigError(f"{self.root / JOB_FILE}: unreadable resolved job ({error}); resubmit the job") from None
 

@@ -63,7 +63,12 @@ def _run(job: Job, run: RunFolder, stages: list[str], force: bool, address: str 
         except StageOrderError:
             if report.failed:  # every unit upstream failed: those failures are the news, not the order
                 break
-            raise
+            empty = next((r.stage for r in report.stages if r.total == 0), None)
+            if empty is None:
+                raise
+            # Rerunning the empty stage would run nothing: say why it is empty instead.
+            raise StageOrderError(f"stage {name} has nothing to read: stage {empty} had no units "
+                                  f"({make_stage(empty, job).when_empty})") from None
         report.stages.append(stage_report)
         if observer.on_stage_end is not None:
             observer.on_stage_end(stage_report)

@@ -95,6 +95,8 @@ class Stage(ABC):
     name: ClassVar[str]
     after: ClassVar[tuple[str, ...]] = ()
     datasets: ClassVar[tuple[str, ...]] = ()
+    # Why a stage may have no units at all, and where to look (said when a later stage has nothing to read).
+    when_empty: ClassVar[str] = "the stages before it produced nothing for it; `mvpd status RUN` shows each stage"
 
     def __init__(self, job: Job):
         self.job = job

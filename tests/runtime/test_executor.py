@@ -13,7 +13,7 @@ from pipeline.runtime.executor import run_stage
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.status import read_status
 from tests.runtime import tiny_stage
-from tests.runtime.tiny_stage import QuickTimeoutStage, TinyStage
+from tests.runtime.tiny_stage import QuickTimeoutStage, TinyStage, UnsendableStage
 
 # Ray workers cannot import the tests package: ship the tiny stage's module by value.
 ray.cloudpickle.register_pickle_by_value(sys.modules[tiny_stage.__name__])
@@ -107,3 +107,12 @@ def test_unit_running_past_its_timeout_is_cancelled_and_recorded(ray_session, ru
     report = run_stage(QuickTimeoutStage(run.job()), run)
     assert [(o.unit, o.error_type) for o in report.failed] == [("c", "UnitTimeout")]
     assert sorted(values(run)) == ["a", "b"] and run.marker("tiny", "c") is None
+
+
+def test_a_task_ray_could_not_start_counts_one_attempt(ray_session, run):
+    """A Ray error that is no lost worker (here: an argument that cannot be set up) ended the first try: attempt
+    1 in the outcome and the status table, not 1 + max_retries."""
+    report = run_stage(UnsendableStage(run.job()), run, executor="ray")
+    assert sorted(o.unit for o in report.failed) == ["a", "b", "c"]
+    assert {o.attempt for o in report.failed} == {1}
+    assert {o.attempt for o in read_status(run.root).values()} == {1}

@@ -57,3 +57,19 @@ class QuickTimeoutStage(TinyStage):
 
     def resources(self) -> StageResources:
         return StageResources(cpus=1, memory_gb=0.1, timeout_s=3)
+
+
+_DRIVER_PID = os.getpid()
+
+
+def _only_in_the_driver(job: object) -> "UnsendableStage":
+    if os.getpid() != _DRIVER_PID:
+        raise RuntimeError("this stage cannot be set up in a worker")
+    return UnsendableStage(job)  # type: ignore[arg-type]
+
+
+class UnsendableStage(TinyStage):
+    """The tiny stage, failing to unpickle in any Ray worker: Ray cannot start its tasks and never retries them."""
+
+    def __reduce__(self) -> tuple:
+        return (_only_in_the_driver, (self.job,))

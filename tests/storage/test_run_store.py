@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
+import json
+import time
 import uuid
 from pathlib import Path
 
 import fsspec
 import pytest
 from fsspec.implementations.memory import MemoryFileSystem
+from typer.testing import CliRunner
+
+from pipeline.cli.main import app
 
 from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources
 from pipeline.runtime.attempt import execute_unit
 from pipeline.runtime.executor import commit_tables
-from pipeline.runtime.object_store import ATTEMPTS, remote_url
+from pipeline.runtime.lock import LOCK_KEY
+from pipeline.runtime.object_store import ATTEMPTS, RunStore, remote_url
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 from pipeline.runtime.tables import read_dataset, to_table
@@ -159,3 +165,16 @@ def test_a_worker_reads_its_inputs_in_place_and_commits_by_upload(url, cache, mo
     assert local_outputs(worker.root) == []  # neither the upstream part nor its own output stayed local
     assert read_dataset(run.root, "status").column("unit").to_pylist() == ["u1", "u1"]
     assert sorted(run.marker("fixture", "copy").keys) == ["status/part-copy.parquet"]
+
+
+def test_a_driver_starting_beside_another_is_told_who_holds_the_run(url, tmp_path):
+    """The first driver's lock is the first key of a new run: a second driver finds the lock (and is told who
+    holds it), not "a folder that is not empty and has no job.yaml"."""
+    holder = {"host": "elsewhere", "pid": 1, "process_started": 0, "started": 0, "owner": "elsewhere.1.0",
+              "heartbeat": time.time()}
+    RunStore(url).put_text(LOCK_KEY, json.dumps(holder))
+    job = tmp_path / "job.yaml"
+    job.write_text("name: race\nscenes: {procedural: {count: 1}}\nembodiments: [{name: e}]\n")
+    result = CliRunner().invoke(app, ["submit", str(job), "--run-dir", url, "--executor", "local"])
+    assert result.exit_code == 2, result.output
+    assert "already being run by pid 1 on elsewhere" in result.output and "no job.yaml" not in result.output
