@@ -28,9 +28,21 @@ def is_run_folder(path: Path) -> bool:
     return (path / JOB_FILE).is_file() or (path / STATE).is_dir()
 
 
+def check_out_location(path: Path, option: str = "--out") -> Path:
+    """`path` resolved, when it is neither the file system root nor inside a run folder (alone: for a folder
+    output whose command checks the folder's content itself, as `predict` does with its manifest)."""
+    resolved = Path(path).expanduser().resolve()
+    if resolved == Path(resolved.anchor):
+        raise OutPathError(f"{option} {path}: is the file system root; give a file or folder of its own")
+    run = next((folder for folder in resolved.parents if is_run_folder(folder)), None)
+    if run is not None:
+        raise OutPathError(f"{option} {path}: is inside the run folder {run}; write outside any run folder")
+    return resolved
+
+
 def check_out_file(path: Path, option: str = "--out") -> Path:
     """`path` resolved, when a file may be written there (see the module docstring); else OutPathError."""
-    resolved = _outside_runs(path, option)
+    resolved = check_out_location(path, option)
     if resolved.is_dir():
         raise OutPathError(f"{option} {path}: is a folder; give a file path")
     return resolved
@@ -38,7 +50,7 @@ def check_out_file(path: Path, option: str = "--out") -> Path:
 
 def check_out_folder(path: Path, command: str, option: str = "--out") -> Path:
     """`path` resolved, when `command` may write a folder there: new, empty, or written by `command` before."""
-    resolved = _outside_runs(path, option)
+    resolved = check_out_location(path, option)
     if resolved.exists() and not resolved.is_dir():
         raise OutPathError(f"{option} {path}: is a file; give a folder path")
     if resolved.is_dir() and any(resolved.iterdir()) and _tag(resolved) != command:
@@ -59,22 +71,6 @@ def out_folder(path: Path, command: str, option: str = "--out") -> Iterator[Path
     finally:
         if resolved.is_dir() and any(resolved.iterdir()) and _tag(resolved) != command:
             (resolved / TAG).write_text(command + "\n", encoding="utf-8")
-
-
-def check_out_location(path: Path, option: str = "--out") -> Path:
-    """`path` resolved, when it is neither the file system root nor inside a run folder (a folder output
-    whose command checks the folder's content itself, as `predict` does with its manifest)."""
-    return _outside_runs(path, option)
-
-
-def _outside_runs(path: Path, option: str) -> Path:
-    resolved = Path(path).expanduser().resolve()
-    if resolved == Path(resolved.anchor):
-        raise OutPathError(f"{option} {path}: is the file system root; give a file or folder of its own")
-    run = next((folder for folder in resolved.parents if is_run_folder(folder)), None)
-    if run is not None:
-        raise OutPathError(f"{option} {path}: is inside the run folder {run}; write outside any run folder")
-    return resolved
 
 
 def _tag(folder: Path) -> str | None:
