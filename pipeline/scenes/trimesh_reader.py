@@ -2,7 +2,8 @@
 
 The one place files are parsed (OBJ + MTL, PLY, GLB / glTF, STL, OFF): `read_parts` gives each node
 of the file's scene graph as a `MeshPart` (node transform applied) with its label properties, OBJ
-group names, vertex colours, material colour or texture. Both the `meshes:` source (meshes.py) and
+group names, vertex colours, material colour or texture. PLY files go through our own reader
+(pipeline/scenes/ply.py), which keeps per-face properties on their faces in binary files and quads. Both the `meshes:` source (meshes.py) and
 the HM3DSem reader (glb.py -> hm3dsem.py) build on it. trimesh parses a 1 M-triangle GLB in about a
 fifth of the time the project's former hand-written GLB reader took (benchmarks/bench_mesh_readers.py).
 Anything unreadable raises SceneError naming the file (and the OBJ line where one is to blame).
@@ -19,6 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pipeline.scenes.ply import PlyMesh, read_ply
 from pipeline.scenes.scene import SceneError
 
 if TYPE_CHECKING:
@@ -165,24 +167,39 @@ def _appearance(geometry: object) -> dict:
     return {"base_color": np.asarray(factor, np.uint8)[:3]} if factor is not None else {}
 
 
-def _ply_labels(geometry: object) -> np.ndarray | None:
-    """Per-face labels from a PLY face (or vertex) label property, or None."""
-    raw = getattr(geometry, "metadata", {}).get("_ply_raw")
-    if not raw:
-        return None
-    faces = np.asarray(geometry.faces)  # type: ignore[attr-defined]
-    face_data, vertex_data = raw.get("face", {}).get("data", {}), raw.get("vertex", {}).get("data", {})
-    face_key = next((k for k in LABEL_PROPERTIES if k in face_data), None)
+def _ply_part(path: Path) -> tuple[MeshPart, int]:
+    """A PLY file as one part, read by our own reader (pipeline/scenes/ply.py: binary and ASCII, any
+    polygon size, per-face properties kept on their faces), and its count of polygons under 3 corners."""
+    mesh = read_ply(path)
+    labels = None
+    face_key = next((k for k in LABEL_PROPERTIES if k in mesh.face), None)
+    vertex_key = next((k for k in LABEL_PROPERTIES if k in mesh.vertex), None)
     if face_key is not None:
-        per_polygon = np.asarray(face_data[face_key]).reshape(-1).astype(np.int64)
-        if len(per_polygon) == len(faces):
-            return per_polygon
-        sizes = np.array([len(c) for c in face_data["vertex_indices"]])
-        return np.repeat(per_polygon, np.maximum(sizes - 2, 0))
-    vertex_key = next((k for k in LABEL_PROPERTIES if k in vertex_data), None)
-    if vertex_key is not None:
-        return np.asarray(vertex_data[vertex_key]).reshape(-1).astype(np.int64)[faces[:, 0]]
-    return None
+        labels = mesh.per_triangle(face_key).astype(np.int64)
+    elif vertex_key is not None:
+        labels = mesh.vertex[vertex_key].astype(np.int64)[mesh.triangles[:, 0]]
+    part = MeshPart("", mesh.vertices.astype(np.float64), mesh.triangles, face_labels=labels,
+                    vertex_colors=mesh.vertex_colors(), **_ply_texture(mesh))
+    if part.vertex_colors is None and all(c in mesh.face for c in ("red", "green", "blue")):
+        # Per-face colours: each face's colour on its corners (shared corners take one of them).
+        colors = np.zeros((len(part.vertices), 3), np.uint8)
+        rgb = np.stack([mesh.per_triangle(c) for c in ("red", "green", "blue")], axis=1).astype(np.uint8)
+        colors[mesh.triangles.reshape(-1)] = np.repeat(rgb, 3, axis=0)
+        part.vertex_colors = colors
+    return part, mesh.short_polygons
+
+
+def _ply_texture(mesh: PlyMesh) -> dict:
+    """`texture` and `uvs` of a PLY naming its image in a `comment TextureFile <name>` line, else {}."""
+    name = next((c.split(maxsplit=1)[1] for c in mesh.comments if c.startswith("TextureFile") and len(c.split()) > 1), None)
+    keys = next((k for k in (("texture_u", "texture_v"), ("s", "t"), ("u", "v")) if all(c in mesh.vertex for c in k)), None)
+    if name is None or keys is None or not (mesh.path.parent / name).is_file():
+        return {}
+    from PIL import Image
+
+    with Image.open(mesh.path.parent / name) as image:
+        texture = np.asarray(image.convert("RGB"), np.uint8)
+    return {"texture": texture, "uvs": np.stack([mesh.vertex[k] for k in keys], axis=1).astype(np.float32)}
 
 
 def _attribute_labels(geometry: object) -> np.ndarray | None:
@@ -228,6 +245,9 @@ def read_parts(path: Path) -> tuple[list[MeshPart], int]:
     """Every placed geometry of a mesh file (file frame) and the count of faces with < 3 corners."""
     if not path.is_file():
         raise SceneError(f"{path}: no such file; check the scene folder holds it")
+    if path.suffix.lower() == ".ply":
+        part, short_faces = _ply_part(path)
+        return [part], short_faces
     scene = _load_trimesh(path)
     obj = _scan_obj_faces(path) if path.suffix.lower() == ".obj" else None
     parts = []
@@ -240,8 +260,7 @@ def read_parts(path: Path) -> tuple[list[MeshPart], int]:
         if not np.array_equal(matrix, np.eye(4)):
             vertices = vertices @ np.asarray(matrix)[:3, :3].T + np.asarray(matrix)[:3, 3]
         faces = np.asarray(geometry.faces, np.int64)
-        labels = _ply_labels(geometry)
-        labels = labels if labels is not None else _attribute_labels(geometry)
+        labels = _attribute_labels(geometry)
         name = _part_name(path, geometry, str(node), obj)
         part = MeshPart(name, vertices, faces, face_labels=labels, **_appearance(geometry))
         if obj is not None and obj.any_group:
