@@ -69,14 +69,19 @@ class MeshPart:
 # ------------------------------------------------------------------------------------------ reading
 
 
-def _load_trimesh(path: Path) -> trimesh.Scene:
+def _load_trimesh(path: Path, obj: ObjFaces | None = None) -> trimesh.Scene:
     import trimesh  # lazily: about 0.5 s to import, and listing scenes never needs it
 
     if path.suffix.lower() in (".glb", ".gltf"):
         check_gltf(path)
+    resolver = None
+    if obj is not None and obj.missing_library:
+        LOG.warning("%s: its material library %s is missing; objects come from its %d `usemtl` names (and `o` / `g` "
+                    "names), colours from a palette", path, obj.missing_library, len(obj.groups.keys() - {""}))
+        resolver = _stand_in_materials(path, obj.groups.keys())
     try:
         # One geometry per material keeps OBJ `usemtl` groups apart; process=False keeps vertex order.
-        return trimesh.load_scene(str(path), process=False)
+        return trimesh.load_scene(str(path), process=False, resolver=resolver)
     except (ValueError, KeyError, IndexError, TypeError, AttributeError, UnicodeDecodeError, OSError,
             NotImplementedError, struct.error) as error:
         where = _first_bad_obj_line(path) if path.suffix.lower() == ".obj" else None
@@ -85,6 +90,25 @@ def _load_trimesh(path: Path) -> trimesh.Scene:
         if path.suffix.lower() == ".glb":
             raise _corrupt_glb(path, f"{type(error).__name__}: {error}") from None
         raise SceneError(f"{path}: trimesh cannot read the mesh ({type(error).__name__}: {error}); re-export the file") from None
+
+
+def _stand_in_materials(path: Path, names: object) -> object:
+    """A trimesh resolver for an OBJ whose MTL file is missing: it serves a stand-in MTL declaring every
+    `usemtl` name, so trimesh keeps one named geometry per material (without one it names none)."""
+    from trimesh.resolvers import FilePathResolver
+
+    stand_in = "".join(f"newmtl {name}\n" for name in sorted(names) if name).encode("utf-8")  # type: ignore[attr-defined]
+
+    class StandInResolver(FilePathResolver):
+        def get(self, name: str) -> bytes:
+            try:
+                return super().get(name)
+            except (FileNotFoundError, ValueError):
+                if name.strip().lower().endswith(".mtl"):
+                    return stand_in
+                raise
+
+    return StandInResolver(str(path))
 
 
 def _corrupt_glb(path: Path, what: str) -> SceneError:
@@ -219,15 +243,18 @@ class ObjFaces:
     groups: dict[str, list[str]]
     short_faces: int  # `f` lines with fewer than 3 corners (trimesh drops them)
     any_group: bool
+    missing_library: str = ""  # the `mtllib` file named but absent beside the OBJ
 
 
 def _scan_obj_faces(path: Path) -> ObjFaces:
     """Each triangle's group name, in the order trimesh emits them (per material, then file order)."""
     groups: dict[str, list[str]] = {}
-    group, material, short, any_group = "", "", 0, False
+    group, material, short, any_group, missing = "", "", 0, False, ""
     with path.open(encoding="utf-8", errors="replace") as handle:
         for line in handle:
             head = line[:7]
+            if head.startswith("mtllib") and not missing and not (path.parent / line[6:].strip()).is_file():
+                missing = line[6:].strip()
             if head.startswith(("f ", "f\t")):
                 corners = len(line.split()) - 1
                 if corners < 3:
@@ -238,7 +265,7 @@ def _scan_obj_faces(path: Path) -> ObjFaces:
                 group, any_group = line[2:].strip(), True
             elif head.startswith("usemtl"):
                 material = line[6:].strip()
-    return ObjFaces(groups, short, any_group)
+    return ObjFaces(groups, short, any_group, missing)
 
 
 def read_parts(path: Path) -> tuple[list[MeshPart], int]:
@@ -248,9 +275,9 @@ def read_parts(path: Path) -> tuple[list[MeshPart], int]:
     if path.suffix.lower() == ".ply":
         part, short_faces = _ply_part(path)
         return [part], short_faces
-    scene = _load_trimesh(path)
     obj = _scan_obj_faces(path) if path.suffix.lower() == ".obj" else None
-    parts = []
+    scene = _load_trimesh(path, obj)
+    parts, ungrouped = [], []
     for node in scene.graph.nodes_geometry:
         matrix, geometry_name = scene.graph[node]
         geometry = scene.geometry[geometry_name]
@@ -263,9 +290,17 @@ def read_parts(path: Path) -> tuple[list[MeshPart], int]:
         labels = _attribute_labels(geometry)
         name = _part_name(path, geometry, str(node), obj)
         part = MeshPart(name, vertices, faces, face_labels=labels, **_appearance(geometry))
+        if obj is not None and obj.missing_library:
+            part.base_color = None  # the stand-in materials carry no colour of the file's
         if obj is not None and obj.any_group:
-            part.face_groups = _obj_groups_of(path, obj, geometry, len(faces))
+            part.face_groups = _obj_groups_of(obj, geometry, len(faces))
+            if part.face_groups is None:
+                ungrouped.append(name)
         parts.append(part)
+    if ungrouped:
+        # One line per file, however many materials: a scan can have hundreds.
+        LOG.warning("%s: %d materials have another triangle count than their `f` lines give (e.g. %s); their `o` / `g` "
+                    "names are ignored and their material names label them", path, len(ungrouped), ", ".join(map(repr, ungrouped[:3])))
     if not parts:
         raise SceneError(f"{path}: the mesh is empty (0 triangles); check the file was exported with geometry")
     return parts, (obj.short_faces if obj is not None else 0)
@@ -279,13 +314,11 @@ def _part_name(path: Path, geometry: object, node: str, obj: ObjFaces | None) ->
     return node if path.suffix.lower() in (".glb", ".gltf") else ""
 
 
-def _obj_groups_of(path: Path, obj: ObjFaces, geometry: object, count: int) -> list[str] | None:
-    """The `o` / `g` name of each triangle trimesh gave for one material, or None (with a warning) when
-    the file's `f` lines do not give the same number of triangles (then material names label it)."""
+def _obj_groups_of(obj: ObjFaces, geometry: object, count: int) -> list[str] | None:
+    """The `o` / `g` name of each triangle trimesh gave for one material, or None when the file's `f`
+    lines do not give the same number of triangles (then material names label it)."""
     material = getattr(getattr(geometry.visual, "material", None), "name", None) or ""  # type: ignore[attr-defined]
     groups = obj.groups.get(str(material)) if len(obj.groups) > 1 else next(iter(obj.groups.values()), [])
     if groups is None or len(groups) != count:
-        LOG.warning("%s: material %r has %d triangles but its `f` lines give %d; its `o` / `g` names are ignored",
-                    path, material, count, len(groups or []))
         return None
     return groups
