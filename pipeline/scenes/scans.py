@@ -61,14 +61,28 @@ def faces_from_vertex_labels(vertex_labels: np.ndarray, faces: np.ndarray) -> np
 def transfer_face_labels(source_vertices: np.ndarray, source_faces: np.ndarray, labels: np.ndarray,
                          target_vertices: np.ndarray, target_faces: np.ndarray) -> np.ndarray:
     """Labels of the source mesh's faces on the target mesh's faces: copied when both meshes have the
-    same triangles, else each target face takes the label of the source face with the nearest centre."""
+    same triangles, else each target face takes the label of the nearest source face that faces the
+    same way (centre distance, plus NORMAL_WEIGHT metres per unit of normal difference: the two sides
+    of a thin wall or a rug on a floor share centres and differ only in their normals)."""
     if np.array_equal(source_faces, target_faces) and np.array_equal(source_vertices, target_vertices):
         return labels
     from scipy.spatial import cKDTree
 
-    centres = source_vertices[source_faces].mean(axis=1)
-    _, nearest = cKDTree(centres).query(target_vertices[target_faces].mean(axis=1))
+    _, nearest = cKDTree(_oriented_centres(source_vertices, source_faces)).query(
+        _oriented_centres(target_vertices, target_faces))
     return labels[nearest]
+
+
+NORMAL_WEIGHT = 0.05
+
+
+def _oriented_centres(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F, 6) face centre and NORMAL_WEIGHT x unit normal (zero for degenerate faces)."""
+    corners = np.asarray(vertices, np.float64)[faces]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+    return np.concatenate([corners.mean(axis=1), NORMAL_WEIGHT * normal], axis=1)
 
 
 def palette_color(object_id: int) -> np.ndarray:
