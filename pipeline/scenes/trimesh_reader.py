@@ -204,12 +204,12 @@ def _ply_part(path: Path) -> tuple[MeshPart, int]:
         labels = mesh.vertex[vertex_key].astype(np.int64)[mesh.triangles[:, 0]]
     part = MeshPart("", mesh.vertices.astype(np.float64), mesh.triangles, face_labels=labels,
                     vertex_colors=mesh.vertex_colors(), **_ply_texture(mesh))
-    if part.vertex_colors is None and all(c in mesh.face for c in ("red", "green", "blue")):
-        # Per-face colours: each face's colour on its corners (shared corners take one of them).
-        colors = np.zeros((len(part.vertices), 3), np.uint8)
+    if part.vertex_colors is None and part.texture is None and all(c in mesh.face for c in ("red", "green", "blue")):
+        # Per-face colours: every face gets corners of its own, so neighbours of another colour do not blend.
+        corners = mesh.triangles.reshape(-1)
         rgb = np.stack([mesh.per_triangle(c) for c in ("red", "green", "blue")], axis=1).astype(np.uint8)
-        colors[mesh.triangles.reshape(-1)] = np.repeat(rgb, 3, axis=0)
-        part.vertex_colors = colors
+        part.vertices, part.faces = part.vertices[corners], np.arange(len(corners), dtype=np.int64).reshape(-1, 3)
+        part.vertex_colors = np.repeat(rgb, 3, axis=0)
     return part, mesh.short_polygons
 
 
