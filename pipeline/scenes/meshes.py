@@ -237,7 +237,10 @@ def read_labelled_mesh(path: Path, up_axis: str = "y", labels: str = "auto", sca
                     "palette colour so that frames are not flat; set keep_uniform_color: true to keep it",
                     path, tuple(int(c) for c in appearance["vertex_colors"][faces[0, 0]]))
         appearance = {"vertex_colors": vertex_colors_of(parts, face_ids, palette=True)}
-    if not any(p.coloured for p in parts):
+    if parts[0].missing_library:
+        LOG.warning("%s: its material library %s is missing; objects come from its %d `usemtl` (and `o` / `g`) names, "
+                    "painted a palette colour each", path, parts[0].missing_library, len(objects))
+    elif not any(p.coloured for p in parts):
         LOG.warning("%s: no vertex colours, materials or textures; painting each object a palette colour", path)
     LOG.info("%s: labels: %s", path, mode)
     return scan_scene(path.stem, "mesh", path, vertices, faces, face_ids, objects, up_axis, appearance,

@@ -48,6 +48,8 @@ class MeshPart:
         vertex_colors: (V, 3) uint8, or None.
         base_color: (3,) uint8 material colour, or None.
         texture: (H, W, 3) uint8 image with `uvs` ((V, 2), v up), or None.
+        missing_library: the `mtllib` file an OBJ names but lacks ("" otherwise); its parts are still
+            split and named by `usemtl`, without colours.
     """
 
     name: str
@@ -59,6 +61,7 @@ class MeshPart:
     base_color: np.ndarray | None = None
     texture: np.ndarray | None = None
     uvs: np.ndarray | None = None
+    missing_library: str = ""
 
     @property
     def coloured(self) -> bool:
@@ -76,8 +79,6 @@ def _load_trimesh(path: Path, obj: ObjFaces | None = None) -> trimesh.Scene:
         check_gltf(path)
     resolver = None
     if obj is not None and obj.missing_library:
-        LOG.warning("%s: its material library %s is missing; objects come from its %d `usemtl` names (and `o` / `g` "
-                    "names), colours from a palette", path, obj.missing_library, len(obj.groups.keys() - {""}))
         resolver = _stand_in_materials(path, obj.groups.keys())
     try:
         # One geometry per material keeps OBJ `usemtl` groups apart; process=False keeps vertex order.
@@ -292,6 +293,7 @@ def read_parts(path: Path) -> tuple[list[MeshPart], int]:
         part = MeshPart(name, vertices, faces, face_labels=labels, **_appearance(geometry))
         if obj is not None and obj.missing_library:
             part.base_color = None  # the stand-in materials carry no colour of the file's
+            part.missing_library = obj.missing_library
         if obj is not None and obj.any_group:
             part.face_groups = _obj_groups_of(obj, geometry, len(faces))
             if part.face_groups is None:
