@@ -166,3 +166,20 @@ def test_walks_on_the_floor_and_frames_reproject(sharded: tuple[RunFolder, dict]
     frame = renderer.render(poses[0])
     assert set(np.unique(frame.panoptic).tolist()) - {0} <= set(scene.objects)
     assert frame.rgb.reshape(-1, 3).std(axis=0).max() > 5  # coloured, not one flat colour
+
+
+def test_the_readme_job_snippet_is_a_valid_scenes_section() -> None:
+    import re
+
+    import yaml
+
+    from pipeline.config import SceneSources
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    section = readme[readme.index("## Your scans"):]
+    section = section[: section.index("\n## ")]
+    block = re.search(r"```yaml\n(.*?)```", section, re.S).group(1)  # type: ignore[union-attr]
+    sources = SceneSources.model_validate(yaml.safe_load(block)["scenes"])
+    assert sources.matterport3d.textured and sources.scannet.labels_tsv and sources.meshes.scale == 0.01  # type: ignore[union-attr]
+    for kind in ("matterport3d", "scannet", "replica", "hm3dsem", "meshes"):  # every source has its table row
+        assert f"`{kind}: {{root:" in section
