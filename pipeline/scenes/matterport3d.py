@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.scenes.ply import read_ply
-from pipeline.scenes.scans import labelled_faces, palette_vertex_colors, scan_scene, transfer_face_labels
+from pipeline.scenes.scans import (distinct_positive, labelled_faces, lookup, palette_vertex_colors, scan_scene,
+                                   transfer_face_labels)
 from pipeline.scenes.scene import Scene, SceneError, SceneObject
 
 HOUSE_SUFFIX = ".house"
@@ -109,15 +110,13 @@ def read_matterport3d(house_path: Path, up_axis: str = "z", textured: bool = Tru
     if key is None:
         raise SceneError(f"{ply_path}: faces have no material_id (segment id) property; re-download the scan's "
                          "house_segmentations")
-    segment_ids = np.array(sorted(house.segment_objects), np.int64)
-    segment_object = np.array([house.segment_objects[int(s)] for s in segment_ids], np.int64) + 1
+    segment_ids = np.array(list(house.segment_objects), np.int64)
+    segment_object = np.array(list(house.segment_objects.values()), np.int64) + 1
     face_segments = mesh.per_triangle(key).astype(np.int64)
-    position = np.searchsorted(segment_ids, face_segments).clip(0, len(segment_ids) - 1)
-    found = segment_ids[position] == face_segments
-    labels = np.where(found, segment_object[position], 0)
+    found, labels = lookup(segment_ids, segment_object, face_segments)
     objects = house_objects(house)
     face_ids, _ = labelled_faces(labels, objects)
-    unknown = len(np.unique(face_segments[~found & (face_segments >= 0)]))
+    unknown = len(distinct_positive(np.where(found, 0, face_segments + 1).clip(min=0)))  # + 1: segment id 0 counts
     vertices = mesh.vertices
     obj_path = textured_mesh(house_path.parent.parent) if textured else None
     if obj_path is not None:

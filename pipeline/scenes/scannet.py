@@ -32,7 +32,7 @@ import numpy as np
 
 from pipeline.scenes.categories import category_of
 from pipeline.scenes.ply import read_ply
-from pipeline.scenes.scans import faces_from_vertex_labels, palette_vertex_colors, read_json, scan_scene
+from pipeline.scenes.scans import faces_from_vertex_labels, lookup, palette_vertex_colors, read_json, scan_scene
 from pipeline.scenes.scene import Scene, SceneError, SceneObject
 
 SCANNET_MESH = "_vh_clean_2.ply"
@@ -64,15 +64,32 @@ def read_labels_tsv(path: Path) -> dict[str, int]:
 
 
 def _vertex_segments(segs_path: Path, vertex_count: int) -> np.ndarray:
-    segs = read_json(segs_path, "a ScanNet scene needs its over-segmentation beside the mesh")
-    try:
-        segments = np.asarray(segs["segIndices"], np.int64)
-    except (KeyError, TypeError, ValueError, IndexError):
-        raise SceneError(f"{segs_path}: no segIndices list of integers; re-download the scene") from None
+    segments = _segment_list(segs_path)
     if segments.ndim != 1 or len(segments) != vertex_count:
         raise SceneError(f"{segs_path}: segIndices has {segments.size} entries but the mesh has {vertex_count} "
                          "vertices (one per vertex); use the segs file of this mesh")
     return segments
+
+
+def _segment_list(segs_path: Path) -> np.ndarray:
+    """The `segIndices` list of a segs file. Its digits are parsed by numpy straight from the text (a
+    fifth of what the json module takes on a million ids); anything unusual goes through json."""
+    if not segs_path.is_file():
+        raise SceneError(f"{segs_path}: missing; a ScanNet scene needs its over-segmentation beside the mesh")
+    text = segs_path.read_text(encoding="utf-8", errors="replace")
+    key = text.find('"segIndices"')
+    start = text.find("[", key) + 1
+    end = text.find("]", start)
+    if key >= 0 and 0 < start < end and text.count("{", key) == 0:
+        body = text[start:end]
+        values = np.fromstring(body, dtype=np.int64, sep=",") if body.strip() else np.zeros(0, np.int64)
+        if len(values) == body.count(",") + 1 or (not body.strip() and len(values) == 0):
+            return values
+    segs = read_json(segs_path, "a ScanNet scene needs its over-segmentation beside the mesh")
+    try:
+        return np.asarray(segs["segIndices"], np.int64)
+    except (KeyError, TypeError, ValueError, IndexError):
+        raise SceneError(f"{segs_path}: no segIndices list of integers; re-download the scene") from None
 
 
 def _groups(aggregation_path: Path) -> list[dict]:
@@ -86,23 +103,26 @@ def _groups(aggregation_path: Path) -> list[dict]:
 def vertex_objects(segments: np.ndarray, groups: list[dict], segs_path: Path,
                    aggregation_path: Path) -> tuple[np.ndarray, dict[int, str]]:
     """(V,) object id (objectId + 1, 0 = none) of each vertex, and each object's raw name."""
-    unique, inverse = np.unique(segments, return_inverse=True)
-    object_of_segment = np.zeros(len(unique), np.int64)
-    names: dict[int, str] = {}
+    members, owners, names = [], [], {}
     for index, group in enumerate(groups):
         try:
-            object_id, label, members = int(group["objectId"]) + 1, str(group["label"]), [int(s) for s in group["segments"]]
+            object_id, label, listed = int(group["objectId"]) + 1, str(group["label"]), [int(s) for s in group["segments"]]
         except (KeyError, TypeError, ValueError):
             raise SceneError(f"{aggregation_path}: segGroups[{index}] needs objectId, label and segments; "
                              "re-download the scene's annotations") from None
-        position = np.searchsorted(unique, members).clip(0, max(len(unique) - 1, 0))
-        missing = [s for s, p in zip(members, position) if len(unique) == 0 or unique[p] != s]
-        if missing:
-            raise SceneError(f"{aggregation_path}: segGroups[{index}].segments names segment {missing[0]}, which "
-                             f"{segs_path.name} (segIndices) does not hold; use the aggregation and segs files of one release")
-        object_of_segment[position] = object_id
+        members.append(np.array(listed, np.int64))
+        owners.append(np.full(len(listed), object_id, np.int64))
         names[object_id] = label
-    return object_of_segment[inverse.reshape(-1)], names
+    member_ids = np.concatenate(members) if members else np.zeros(0, np.int64)
+    owner_ids = np.concatenate(owners) if owners else np.zeros(0, np.int64)
+    held, _ = lookup(segments, segments, member_ids)
+    if not held.all():
+        stray = int(member_ids[~held][0])
+        group = next(k for k, m in enumerate(members) if stray in m)
+        raise SceneError(f"{aggregation_path}: segGroups[{group}].segments names segment {stray}, which "
+                         f"{segs_path.name} (segIndices) does not hold; use the aggregation and segs files of one release")
+    _, per_vertex = lookup(member_ids, owner_ids, segments)
+    return per_vertex, names
 
 
 def read_scannet(mesh_path: Path, up_axis: str = "z", labels_tsv: str = "") -> Scene:

@@ -122,7 +122,7 @@ def scan_scene(scene_id: str, source: str, path: Path, vertices: np.ndarray, fac
     if dropped:
         faces, face_ids = faces[keep], face_ids[keep]
         appearance = {k: (v[keep] if k in ("face_uvs", "face_material") and v is not None else v) for k, v in appearance.items()}
-    present = {int(i) for i in np.unique(face_ids) if i > 0}
+    present = set(distinct_positive(face_ids).tolist())
     transform = up_axis_transform(up_axis)
     LOG.info("%s: %d triangles, %d objects", path, len(faces), len(present))
     return Scene(scene_id=scene_id, vertices=to_world(vertices, transform), faces=faces.astype(np.int32),
@@ -131,21 +131,47 @@ def scan_scene(scene_id: str, source: str, path: Path, vertices: np.ndarray, fac
                  path=str(path), unknown_colors=int(unknown), degenerate_faces=dropped + int(short_faces), **appearance)
 
 
+def lookup(keys: np.ndarray, values: np.ndarray, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(found, value) for each query among integer `keys` (value 0 where not found).
+
+    A dense table when the keys are small non-negative integers (dataset ids are), which is linear
+    time on a million faces; a binary search otherwise."""
+    keys, queries = np.asarray(keys, np.int64), np.asarray(queries, np.int64)
+    if len(keys) == 0:
+        return np.zeros(len(queries), bool), np.zeros(len(queries), np.int64)
+    low, high = int(min(keys.min(), queries.min(initial=0))), int(max(keys.max(), queries.max(initial=0)))
+    if low >= 0 and high < 4 * len(queries) + 1_000_000:
+        table, known = np.zeros(high + 1, np.int64), np.zeros(high + 1, bool)
+        table[keys], known[keys] = values, True
+        return known[queries], table[queries]
+    order = np.argsort(keys, kind="stable")
+    position = np.searchsorted(keys[order], queries).clip(0, len(keys) - 1)
+    found = keys[order][position] == queries
+    return found, np.where(found, np.asarray(values, np.int64)[order][position], 0)
+
+
+def distinct_positive(values: np.ndarray) -> np.ndarray:
+    """Sorted distinct values > 0 of an integer array (a count table when they are small, else a sort)."""
+    values = np.asarray(values, np.int64)
+    if len(values) and values.min() >= 0 and values.max() < 4 * len(values) + 1_000_000:
+        return np.flatnonzero(np.bincount(values)[1:]) + 1
+    unique = np.unique(values)
+    return unique[unique > 0]
+
+
 def labelled_faces(labels: np.ndarray, known: dict[int, SceneObject] | set[int]) -> tuple[np.ndarray, int]:
     """(F,) object ids where the label names a known object, else 0; and the count of distinct unknown labels > 0."""
     keys = np.array(sorted(known), dtype=np.int64)
-    listed = np.isin(labels, keys)
-    unknown = np.unique(labels[~listed & (labels > 0)])
+    listed, _ = lookup(keys, keys, labels)
+    unknown = distinct_positive(np.where(listed, 0, labels).clip(min=0))
     return np.where(listed, labels, 0).astype(np.int64), int(len(unknown))
 
 
 def non_degenerate(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(F,) True for faces with three distinct corners and non-zero area (float64 cross product)."""
+    """(F,) True for faces with three distinct corners and non-zero area.
+
+    Exact for float32 vertices: their differences and the products of two differences are exact in
+    float64, so the cross product is zero exactly when the area is (no tolerance, no norm)."""
     distinct = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    a = vertices[faces[:, 0]].astype(np.float64)
-    first, second = vertices[faces[:, 1]] - a, vertices[faces[:, 2]] - a
-    # The cross product is zero exactly when the area is; its components are compared, no norm needed.
-    area = first[:, 1] * second[:, 2] != first[:, 2] * second[:, 1]
-    area |= first[:, 2] * second[:, 0] != first[:, 0] * second[:, 2]
-    area |= first[:, 0] * second[:, 1] != first[:, 1] * second[:, 0]
-    return distinct & area
+    corners = np.asarray(vertices, np.float64)[faces]
+    return distinct & np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]).any(axis=1)

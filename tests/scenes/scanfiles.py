@@ -29,6 +29,11 @@ def object_index(scene: Scene) -> dict[int, int]:
     return {object_id: k for k, object_id in enumerate(sorted(scene.objects))}
 
 
+def instance_indices(scene: Scene, object_ids: np.ndarray) -> np.ndarray:
+    """The 0-based dataset index (object_index) of each of the given house object ids, vectorised."""
+    return np.searchsorted(np.array(sorted(scene.objects), np.int64), np.asarray(object_ids, np.int64))
+
+
 def expected_objects(scene: Scene) -> list[tuple[str, int]]:
     """Sorted (raw name, mpcat40) of every object, what each reader must give back."""
     return sorted((o.raw_name, o.category) for o in scene.objects.values())
@@ -70,7 +75,7 @@ def write_matterport3d(scene: Scene, root: Path, scan: str) -> Path:
             lines.append(f"E  {2 * k + half} {k} {1000 + 2 * k + half}  1  0 0 0  0 0 0 1 1 1  0 0 0 0 0")
     (folder / f"{scan}.house").write_text("\n".join(lines) + "\n", encoding="utf-8")
     ids = scene.face_object_ids.astype(np.int64)
-    k = np.array([index[int(i)] for i in ids])
+    k = instance_indices(scene, ids)
     # Each object's faces alternate between its two segments, so segments really group faces.
     segment = 1000 + 2 * k + (np.arange(len(ids)) % 2)
     vertices = file_vertices(scene)
@@ -80,7 +85,7 @@ def write_matterport3d(scene: Scene, root: Path, scan: str) -> Path:
                **{c: columns[c] for c in ("red", "green", "blue")}}
     write_ply(folder / f"{scan}.ply", columns, scene.faces,
               {"material_id": segment.astype(np.int32), "segment_id": k.astype(np.int32),
-               "category_id": np.array([category[scene.objects[int(i)].raw_name] for i in ids], np.int32)})
+               "category_id": np.array([category[scene.objects[i].raw_name] for i in sorted(index)], np.int32)[k]})
     return folder / f"{scan}.house"
 
 
@@ -110,9 +115,14 @@ def write_matterport_textured_mesh(scene: Scene, root: Path, scan: str) -> Path:
 # ------------------------------------------------------------------------------------- ScanNet, ScanNet++
 
 
-def _unshared(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Vertices, colours, triangles and per-vertex object ids with no vertex shared by two objects
-    (ScanNet labels vertices, so a vertex must belong to one object)."""
+def _vertex_labelled(scene: Scene, unshare: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices, colours, triangles and per-vertex object ids. ScanNet labels vertices, so with `unshare`
+    no vertex is shared by two objects (exact labels); without it (a real scan's vertex count, for the
+    benchmark) a shared vertex takes the object of the last face using it."""
+    if not unshare:
+        vertex_ids = np.zeros(len(scene.vertices), np.int64)
+        vertex_ids[scene.faces.reshape(-1)] = np.repeat(scene.face_object_ids.astype(np.int64), 3)
+        return file_vertices(scene), scene.vertex_colors, scene.faces, vertex_ids
     flat = scene.faces.reshape(-1)
     vertex_ids = np.repeat(scene.face_object_ids.astype(np.int64), 3)
     return (file_vertices(scene)[flat], scene.vertex_colors[flat], np.arange(len(flat)).reshape(-1, 3), vertex_ids)
@@ -121,18 +131,18 @@ def _unshared(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
 def _segments_and_groups(scene: Scene, vertex_ids: np.ndarray) -> tuple[list[int], list[dict]]:
     """Per-vertex segment ids (two segments per object, ScanNet-style large ids) and the segGroups."""
     index = object_index(scene)
-    k = np.array([index[int(i)] for i in vertex_ids])
+    k = instance_indices(scene, vertex_ids)
     segment = 7 * (2 * k + (np.arange(len(k)) // 3 % 2)) + 11
     groups = [{"id": k_, "objectId": k_, "segments": sorted({7 * (2 * k_) + 11, 7 * (2 * k_ + 1) + 11} & set(segment.tolist())),
                "label": scene.objects[object_id].raw_name} for object_id, k_ in index.items()]
     return segment.tolist(), groups
 
 
-def write_scannet(scene: Scene, root: Path, scene_id: str) -> Path:
+def write_scannet(scene: Scene, root: Path, scene_id: str, unshare: bool = True) -> Path:
     """`<root>/scans/<scene>/` with `_vh_clean_2.ply`, `_vh_clean_2.0.010000.segs.json`, `.aggregation.json`."""
     folder = root / "scans" / scene_id
     folder.mkdir(parents=True)
-    vertices, colors, faces, vertex_ids = _unshared(scene)
+    vertices, colors, faces, vertex_ids = _vertex_labelled(scene, unshare)
     segments, groups = _segments_and_groups(scene, vertex_ids)
     mesh = write_ply(folder / f"{scene_id}_vh_clean_2.ply", _vertex_columns(vertices, colors, alpha=True), faces)
     (folder / f"{scene_id}_vh_clean_2.0.010000.segs.json").write_text(json.dumps(
@@ -156,11 +166,11 @@ def write_labels_tsv(root: Path, names: dict[str, int]) -> Path:
     return path
 
 
-def write_scannetpp(scene: Scene, root: Path, scene_id: str) -> Path:
+def write_scannetpp(scene: Scene, root: Path, scene_id: str, unshare: bool = True) -> Path:
     """`<root>/data/<scene>/scans/` with `mesh_aligned_0.05.ply`, `segments.json`, `segments_anno.json`."""
     folder = root / "data" / scene_id / "scans"
     folder.mkdir(parents=True)
-    vertices, colors, faces, vertex_ids = _unshared(scene)
+    vertices, colors, faces, vertex_ids = _vertex_labelled(scene, unshare)
     segments, groups = _segments_and_groups(scene, vertex_ids)
     mesh = write_ply(folder / "mesh_aligned_0.05.ply", _vertex_columns(vertices, colors), faces)
     (folder / "segments.json").write_text(json.dumps({"sceneId": scene_id, "segIndices": segments}), encoding="utf-8")
@@ -172,19 +182,26 @@ def write_scannetpp(scene: Scene, root: Path, scene_id: str) -> Path:
 
 
 def quads_of(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """(Q, 4) quads and their object ids: a triangle pair (a, b, c), (a, c, d) of one object is the quad
-    (a, b, c, d) (how the house tessellates its boxes); a lone triangle is written (a, b, c, c)."""
-    faces, ids = scene.faces, scene.face_object_ids
-    quads, quad_ids, i = [], [], 0
-    while i < len(faces):
-        a, b, c = faces[i]
-        if i + 1 < len(faces) and ids[i + 1] == ids[i] and faces[i + 1][0] == a and faces[i + 1][1] == c:
-            quads.append((a, b, c, faces[i + 1][2]))
-            i += 2
-        else:
-            quads.append((a, b, c, c))
-            i += 1
-        quad_ids.append(ids[i - 1])
+    """(Q, 4) quads and their object ids: a triangle (a, b, c) whose neighbour of the same object across
+    its edge c-a is (a, c, d) becomes the quad (a, b, c, d) (fanned back into those two triangles);
+    a triangle without one is written (a, b, c, c)."""
+    faces, ids = scene.faces.tolist(), scene.face_object_ids.tolist()
+    owner = {(u, v): i for i, (a, b, c) in enumerate(faces) for u, v in ((a, b), (b, c), (c, a))}
+    used = [False] * len(faces)
+    quads, quad_ids = [], []
+    for i, (a, b, c) in enumerate(faces):
+        if used[i]:
+            continue
+        used[i] = True
+        quad = (a, b, c, c)
+        for p, q, r in ((a, b, c), (b, c, a), (c, a, b)):
+            j = owner.get((p, r))  # the neighbour across edge r-p runs p -> r
+            if j is not None and not used[j] and ids[j] == ids[i]:
+                used[j] = True
+                quad = (p, q, r, next(v for v in faces[j] if v not in (p, r)))
+                break
+        quads.append(quad)
+        quad_ids.append(ids[i])
     return np.array(quads, np.int64), np.array(quad_ids, np.int64)
 
 
@@ -204,5 +221,5 @@ def write_replica(scene: Scene, root: Path, name: str) -> Path:
         {"classes": classes, "objects": objects, "id_to_label": [o["class_id"] for o in objects]}), encoding="utf-8")
     columns = _vertex_columns(file_vertices(scene), scene.vertex_colors, normals=True)
     write_ply(root / name / "mesh.ply", columns, quads)
-    object_ids = np.array([index[int(i)] for i in quad_ids], np.int32)
+    object_ids = instance_indices(scene, quad_ids).astype(np.int32)
     return write_ply(folder / "mesh_semantic.ply", columns, quads, {"object_id": object_ids})

@@ -1,0 +1,90 @@
+"""Scan dataset readers against trimesh's own load of the same mesh file, on a ~1 M-triangle scan.
+
+One generated house at detail 1.0 (about 1 M triangles) is written in each dataset's own layout
+(tests/scenes/scanfiles.py: binary PLY, Z up; ScanNet with shared vertices, as a real scan has), then,
+in one process, alternating, RUNS times each (a ratio holds on a loaded machine, a time does not):
+    - the peer: `trimesh.load(<the scene's mesh file>, process=False)` (the parse alone, no labels),
+    - our reader of the whole scene: mesh + the dataset's label files -> a labelled Scene in the world
+      frame (Matterport3D: .house + segmentation .ply; ScanNet v2 / ScanNet++: .ply + segs + aggregation;
+      Replica: mesh_semantic.ply + info_semantic.json + the coloured mesh.ply, two PLY files).
+The target (issue 19): each reader at most 2x its peer (median of RUNS). Results:
+benchmarks/results/scans.json. No extra packages (trimesh is a project dependency).
+Run:
+    cd /work/main && .venv/bin/python benchmarks/bench_scans.py
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Callable
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+RUNS = 3
+TARGET_RATIO = 2.0
+
+
+def _datasets(folder: Path) -> dict[str, tuple[Path, Callable[[], object]]]:
+    """Dataset -> (the mesh file trimesh loads, our reader of the whole scene), written under `folder`."""
+    from pipeline.scenes.matterport3d import read_matterport3d
+    from pipeline.scenes.procedural.house import generate_house
+    from pipeline.scenes.replica import read_replica
+    from pipeline.scenes.scannet import read_scannet
+    from tests.scenes.scanfiles import write_matterport3d, write_replica, write_scannet, write_scannetpp
+
+    house = generate_house(seed=2, detail=1.0)
+    print(f"house: {house.triangle_count} triangles, {len(house.vertices)} vertices, {len(house.objects)} objects")
+    house_file = write_matterport3d(house, folder / "mp", "bench0000001")
+    scannet = write_scannet(house, folder / "scannet", "scene0000_00", unshare=False)
+    scannetpp = write_scannetpp(house, folder / "scannetpp", "bench0000pp", unshare=False)
+    replica = write_replica(house, folder / "replica", "room_0")
+    return {
+        "matterport3d": (house_file.with_suffix(".ply"), lambda: read_matterport3d(house_file, textured=False)),
+        "scannet v2": (scannet, lambda: read_scannet(scannet)),
+        "scannet++": (scannetpp, lambda: read_scannet(scannetpp)),
+        "replica": (replica, lambda: read_replica(replica)),
+    }
+
+
+def main() -> None:
+    """Time each reader and its peer, print median and spread, save benchmarks/results/scans.json."""
+    import trimesh
+
+    with tempfile.TemporaryDirectory() as folder:
+        datasets = _datasets(Path(folder))
+        timed: dict[str, Callable[[], object]] = {}
+        for name, (mesh, read) in datasets.items():
+            timed[f"{name}: trimesh.load (peer)"] = lambda mesh=mesh: trimesh.load(str(mesh), process=False)
+            timed[f"{name}: our reader"] = read
+        for read in timed.values():
+            read()  # warm imports and the page cache
+        times: dict[str, list[float]] = {name: [] for name in timed}
+        for _ in range(RUNS):
+            for name, read in timed.items():
+                started = time.perf_counter()
+                read()
+                times[name].append(time.perf_counter() - started)
+        triangles = len(trimesh.load(str(next(iter(datasets.values()))[0]), process=False).faces)
+    results: dict = {"runs": RUNS, "triangles": triangles, "target_ratio": TARGET_RATIO, "datasets": {}}
+    for name in datasets:
+        peer, ours = times[f"{name}: trimesh.load (peer)"], times[f"{name}: our reader"]
+        row = {"peer_median_s": round(statistics.median(peer), 4), "peer_min_s": round(min(peer), 4),
+               "peer_max_s": round(max(peer), 4), "reader_median_s": round(statistics.median(ours), 4),
+               "reader_min_s": round(min(ours), 4), "reader_max_s": round(max(ours), 4),
+               "ratio_to_peer": round(statistics.median(ours) / statistics.median(peer), 2)}
+        results["datasets"][name] = row
+        print(f"{name:>13}: reader {row['reader_median_s']:.3f} s ({row['reader_min_s']:.3f}-{row['reader_max_s']:.3f}), "
+              f"trimesh {row['peer_median_s']:.3f} s ({row['peer_min_s']:.3f}-{row['peer_max_s']:.3f}), "
+              f"{row['ratio_to_peer']:.2f} x peer (target <= {TARGET_RATIO:g})")
+    out = Path(__file__).resolve().parent / "results" / "scans.json"
+    out.write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
+
+
+if __name__ == "__main__":
+    main()
