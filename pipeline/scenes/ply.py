@@ -59,7 +59,8 @@ class PlyMesh:
 
     Attributes:
         vertex: every vertex property by name ((V,) arrays).
-        triangles: (F, 3) int64 fan triangles, polygon after polygon in file order.
+        triangles: (F, 3) integer fan triangles (the file's index type for triangle meshes, else int64),
+            polygon after polygon in file order.
         triangle_polygon: (F,) int64 index of the polygon each triangle comes from.
         face: every scalar face property by name ((P,) arrays, one entry per polygon).
         comments: the header's `comment` lines (without the keyword), e.g. `TextureFile x.png`.
@@ -300,8 +301,8 @@ def fan_triangles(polygons: np.ndarray | list[np.ndarray]) -> tuple[np.ndarray, 
     """(F, 3) fan triangles (0, i, i + 1) of each polygon, polygon after polygon, and each one's polygon."""
     if isinstance(polygons, np.ndarray) and polygons.ndim == 2:
         count, corners = polygons.shape
-        if corners == 3:
-            return polygons.astype(np.int64), np.arange(count, dtype=np.int64)
+        if corners == 3:  # already triangles: the file's index array as it is (no copy)
+            return polygons, np.arange(count, dtype=np.int64)
         sizes = np.full(count, corners, np.int64)
         flat = polygons.reshape(-1).astype(np.int64)
     else:

@@ -125,8 +125,8 @@ def scan_scene(scene_id: str, source: str, path: Path, vertices: np.ndarray, fac
     present = set(distinct_positive(face_ids).tolist())
     transform = up_axis_transform(up_axis)
     LOG.info("%s: %d triangles, %d objects", path, len(faces), len(present))
-    return Scene(scene_id=scene_id, vertices=to_world(vertices, transform), faces=faces.astype(np.int32),
-                 face_object_ids=face_ids.astype(np.uint32),
+    return Scene(scene_id=scene_id, vertices=to_world(vertices, transform), faces=faces.astype(np.int32, copy=False),
+                 face_object_ids=face_ids.astype(np.uint32, copy=False),
                  objects={i: o for i, o in sorted(objects.items()) if i in present}, to_world=transform, source=source,
                  path=str(path), unknown_colors=int(unknown), degenerate_faces=dropped + int(short_faces), **appearance)
 
@@ -171,7 +171,16 @@ def non_degenerate(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(F,) True for faces with three distinct corners and non-zero area.
 
     Exact for float32 vertices: their differences and the products of two differences are exact in
-    float64, so the cross product is zero exactly when the area is (no tolerance, no norm)."""
-    distinct = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    corners = np.asarray(vertices, np.float64)[faces]
-    return distinct & np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]).any(axis=1)
+    float64, so a cross product component is zero exactly when its two products are equal (no
+    tolerance, no norm). Coordinates are gathered one axis at a time (contiguous columns), the
+    cheapest layout on a million faces."""
+    faces = np.asarray(faces)
+    first, second, third = faces[:, 0], faces[:, 1], faces[:, 2]
+    distinct = (first != second) & (second != third) & (first != third)
+    x, y, z = np.asarray(vertices, np.float64).T.copy()
+    ux, uy, uz = x[second] - x[first], y[second] - y[first], z[second] - z[first]
+    vx, vy, vz = x[third] - x[first], y[third] - y[first], z[third] - z[first]
+    area = uy * vz != uz * vy
+    area |= uz * vx != ux * vz
+    area |= ux * vy != uy * vx
+    return distinct & area
