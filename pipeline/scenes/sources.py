@@ -220,8 +220,10 @@ def load_scene_file(path: str | Path, up_axis: str | None = None) -> Scene:
     """Load a scene from a file path, choosing the reader from the name.
 
     An HM3DSem trio is recognised by its `.semantic.txt` (or a `.glb` with a `.semantic.txt` beside
-    it, or the `.semantic.glb`); a folder holding exactly one trio works too. Anything else with a
-    mesh suffix is read as a plain labelled mesh. `up_axis` defaults to "z" for HM3DSem, "y" otherwise.
+    it, or the `.semantic.glb`); a folder holding exactly one trio works too. A Matterport3D `.house`,
+    a ScanNet `_vh_clean_2.ply` / ScanNet++ `scans/mesh_aligned_0.05.ply` and a Replica
+    `habitat/mesh_semantic.ply` are read with their dataset's files. Anything else with a mesh suffix
+    is read as a plain labelled mesh. `up_axis` defaults to "z" for HM3DSem and the datasets, "y" otherwise.
     """
     path = Path(path)
     if path.is_dir():
@@ -230,7 +232,11 @@ def load_scene_file(path: str | Path, up_axis: str | None = None) -> Scene:
             raise SceneError(f"{path}: holds {len(trios)} *{SEMANTIC_TXT} files; give the scene's file instead")
         path = trios[0]
     trio_text = _hm3dsem_text_of(path)
-    if trio_text is not None:
+    dataset_loader = _dataset_loader_of(path)
+    if dataset_loader is not None:
+        scene = dataset_loader(SceneRef(path.stem, "file", str(path), dataset_loader,
+                                        (("up_axis", up_axis),) if up_axis else ()))
+    elif trio_text is not None:
         from pipeline.scenes.hm3dsem import read_hm3dsem
 
         scene = read_hm3dsem(trio_text, up_axis=up_axis or "z")
@@ -242,6 +248,21 @@ def load_scene_file(path: str | Path, up_axis: str | None = None) -> Scene:
         raise SceneError(f"{path}: not a scene file; give a .semantic.txt or a mesh ({', '.join(MESH_SUFFIXES)})")
     scene.validate()
     return scene
+
+
+def _dataset_loader_of(path: Path) -> Callable[[SceneRef], Scene] | None:
+    """The scan dataset reader a file's name belongs to (a Matterport3D `.house`, a ScanNet / ScanNet++
+    mesh, a Replica `habitat/mesh_semantic.ply`), or None."""
+    from pipeline.scenes.replica import SEMANTIC_MESH
+    from pipeline.scenes.scannet import SCANNET_MESH, SCANNETPP_MESH
+
+    if path.suffix == ".house":
+        return load_matterport3d
+    if path.name.endswith(SCANNET_MESH) or (path.name == SCANNETPP_MESH and path.parent.name == "scans"):
+        return load_scannet
+    if path.name == SEMANTIC_MESH and path.parent.name == "habitat":
+        return load_replica
+    return None
 
 
 def _hm3dsem_text_of(path: Path) -> Path | None:

@@ -187,3 +187,15 @@ def test_the_readme_job_snippet_is_a_valid_scenes_section() -> None:
     assert sources.matterport3d.textured and sources.scannet.labels_tsv and sources.meshes.scale == 0.01  # type: ignore[union-attr]
     for kind in ("matterport3d", "scannet", "replica", "hm3dsem", "meshes"):  # every source has its table row
         assert f"`{kind}: {{root:" in section
+
+
+@pytest.mark.parametrize("relative", ["mp/2t7WUuJeko7/house_segmentations/2t7WUuJeko7.house",
+                                      "scannet/scans/scene0000_00/scene0000_00_vh_clean_2.ply",
+                                      "scannet/data/pp0a1b2c3d/scans/mesh_aligned_0.05.ply",
+                                      "replica/room_0/habitat/mesh_semantic.ply"])
+def test_a_dataset_file_loads_by_its_name(sharded: tuple[RunFolder, dict], house: Scene, relative: str) -> None:
+    from pipeline.scenes.sources import load_scene_file
+
+    row = next(r for r in sharded[0].read("scenes").to_pylist() if r["path"].endswith(relative))
+    scene = load_scene_file(row["path"])  # what `mvpd scenes preview` / `stats` call
+    assert scene.triangle_count == house.triangle_count and len(scene.objects) == len(house.objects)
