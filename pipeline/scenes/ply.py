@@ -335,8 +335,11 @@ def read_ply(path: Path) -> PlyMesh:
         raise SceneError(f"{path}: face vertex_indices outside 0..{vertex.count - 1}; the file is corrupt")
     scalars = {name: np.asarray(values) for name, values in face.data.items()
                if name != key and not isinstance(values, list) and np.asarray(values).ndim == 1}
-    # Polygon indices never decrease, so the distinct ones are counted where they change.
-    with_triangles = int(np.count_nonzero(np.diff(polygon, prepend=-1)))
+    polygons = face.data[key]
+    if isinstance(polygons, np.ndarray) and polygons.ndim == 2 and polygons.shape[1] == 3:
+        with_triangles = face.count  # a triangle mesh (every scan's file): nothing to count
+    else:  # polygon indices never decrease, so the distinct ones are counted where they change
+        with_triangles = int(np.count_nonzero(np.diff(polygon, prepend=-1)))
     return PlyMesh(Path(path), dict(vertex.data), triangles, polygon, scalars, comments,  # type: ignore[arg-type]
                    only_triangles=bool(len(polygon) == face.count == with_triangles),
                    short_polygons=face.count - with_triangles)
