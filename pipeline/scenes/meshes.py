@@ -18,8 +18,12 @@ colours, textures including MTL `map_Kd`). What labels the faces is chosen by `l
     components  each connected component of the mesh is one `misc` object.
     auto        (default) the first of those that the file supports, in that order.
 
-Colours: vertex colours, else material base colours and textures. A mesh with no colour at all is
-painted with a palette colour per object (and a warning), so objects stay distinguishable.
+Colours: vertex colours, else material base colours and textures. A mesh with no colour at all (an
+OBJ whose MTL file is missing included: its `usemtl` names still make the objects), or whose faces
+all carry one colour (every material Blender's default grey; `keep_uniform_color` keeps it), is
+painted with a palette colour per object (and one warning), so objects stay distinguishable.
+`scale` gives the metres of one file unit; a scene over 1 km or under 1 m across gets one warning
+naming the likely unit. Warnings are one line per file and kind, however many materials it has.
 Faces with fewer than 3 corners or zero area are dropped and counted in `Scene.degenerate_faces`.
 """
 
@@ -229,22 +233,29 @@ def read_labelled_mesh(path: Path, up_axis: str = "y", labels: str = "auto", sca
     if scale != 1.0:
         vertices = (vertices.astype(np.float64) * scale).astype(np.float32)
     _warn_unlikely_unit(path, vertices, scale)
-    appearance = {"vertex_colors": vertex_colors_of(parts, face_ids)}
-    if any(p.texture is not None for p in parts):
-        appearance = textured_appearance(parts, appearance["vertex_colors"], faces)
-    elif not keep_uniform_color and _one_colour(appearance["vertex_colors"], faces) and any(p.coloured for p in parts):
-        LOG.warning("%s: every face has the same colour %s (as Blender's default material); painting each object a "
-                    "palette colour so that frames are not flat; set keep_uniform_color: true to keep it",
-                    path, tuple(int(c) for c in appearance["vertex_colors"][faces[0, 0]]))
-        appearance = {"vertex_colors": vertex_colors_of(parts, face_ids, palette=True)}
     if parts[0].missing_library:
         LOG.warning("%s: its material library %s is missing; objects come from its %d `usemtl` (and `o` / `g`) names, "
                     "painted a palette colour each", path, parts[0].missing_library, len(objects))
     elif not any(p.coloured for p in parts):
         LOG.warning("%s: no vertex colours, materials or textures; painting each object a palette colour", path)
     LOG.info("%s: labels: %s", path, mode)
-    return scan_scene(path.stem, "mesh", path, vertices, faces, face_ids, objects, up_axis, appearance,
-                      unknown, short_faces)
+    return scan_scene(path.stem, "mesh", path, vertices, faces, face_ids, objects, up_axis,
+                      _appearance(parts, face_ids, faces, path, keep_uniform_color), unknown, short_faces)
+
+
+def _appearance(parts: list[MeshPart], face_ids: np.ndarray, faces: np.ndarray, path: Path,
+                keep_uniform_color: bool) -> dict:
+    """Scene colour fields: textures when any part has one, else vertex colours; one colour on every
+    face (Blender's default grey) becomes a palette colour per object unless `keep_uniform_color`."""
+    colors = vertex_colors_of(parts, face_ids)
+    if any(p.texture is not None for p in parts):
+        return textured_appearance(parts, colors, faces)
+    if keep_uniform_color or not any(p.coloured for p in parts) or not _one_colour(colors, faces):
+        return {"vertex_colors": colors}
+    LOG.warning("%s: every face has the same colour %s (as Blender's default material); painting each object a "
+                "palette colour so that frames are not flat; set keep_uniform_color: true to keep it",
+                path, tuple(int(c) for c in colors[faces[0, 0]]))
+    return {"vertex_colors": vertex_colors_of(parts, face_ids, palette=True)}
 
 
 def _one_colour(vertex_colors: np.ndarray, faces: np.ndarray) -> bool:
