@@ -345,41 +345,49 @@ def read_ply(path: Path) -> PlyMesh:
                    short_polygons=face.count - with_triangles)
 
 
+# The type name the writer gives each numpy item type (the readers accept every alias in TYPES).
+TYPE_NAMES = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int", "u4": "uint", "f4": "float",
+              "f8": "double"}
+
+
+def _rows(columns: dict[str, np.ndarray], count: int, leading: list[tuple] | None = None) -> np.ndarray:
+    """One little-endian structured array of the columns (after the `leading` fields)."""
+    rows = np.zeros(count, (leading or []) + [(k, "<" + np.asarray(v).dtype.str[1:]) for k, v in columns.items()])
+    for name, values in columns.items():
+        rows[name] = values
+    return rows
+
+
+def _header_lines(columns: dict[str, np.ndarray]) -> list[str]:
+    return [f"property {TYPE_NAMES[np.asarray(v).dtype.str[1:]]} {k}" for k, v in columns.items()]
+
+
 def write_ply(path: Path, vertex: dict[str, np.ndarray], polygons: np.ndarray, face: dict[str, np.ndarray] | None = None,
               binary: bool = True) -> Path:
     """Write a PLY mesh (binary little-endian or ASCII) with the given vertex columns, (P, k) polygons
     (uchar count, int indices, as the datasets ship them) and per-polygon scalar columns."""
     face = face or {}
-    names = {np.dtype(v).str[1:]: k for k, v in TYPES.items() if k in ("char", "uchar", "short", "ushort", "int", "uint", "float", "double")}
-    lines = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0", f"element vertex {len(next(iter(vertex.values())))}"]
-    lines += [f"property {names[np.asarray(v).dtype.str[1:]]} {k}" for k, v in vertex.items()]
-    lines += [f"element face {len(polygons)}", "property list uchar int vertex_indices"]
-    lines += [f"property {names[np.asarray(v).dtype.str[1:]]} {k}" for k, v in face.items()]
-    header = ("\n".join(lines) + "\nend_header\n").encode("ascii")
     polygons = np.asarray(polygons, np.int32)
-    vertex_rows = np.zeros(len(next(iter(vertex.values()))), [(k, "<" + np.asarray(v).dtype.str[1:]) for k, v in vertex.items()])
-    for k, v in vertex.items():
-        vertex_rows[k] = v
-    face_rows = np.zeros(len(polygons), [("count", "u1"), ("indices", "<i4", (polygons.shape[1],))]
-                         + [(k, "<" + np.asarray(v).dtype.str[1:]) for k, v in face.items()])
+    vertex_rows = _rows(vertex, len(next(iter(vertex.values()))))
+    face_rows = _rows(face, len(polygons), [("count", "u1"), ("indices", "<i4", (polygons.shape[1],))])
     face_rows["count"], face_rows["indices"] = polygons.shape[1], polygons
-    for k, v in face.items():
-        face_rows[k] = v
+    lines = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0", f"element vertex {len(vertex_rows)}",
+             *_header_lines(vertex), f"element face {len(polygons)}", "property list uchar int vertex_indices",
+             *_header_lines(face), "end_header"]
     temporary = Path(path).with_name(f".{Path(path).name}.tmp")
     with temporary.open("wb") as handle:
-        handle.write(header)
-        if binary:
-            handle.write(vertex_rows.tobytes())
-            handle.write(face_rows.tobytes())
-        else:
-            for rows in (vertex_rows, face_rows):
-                for row in rows.tolist():
-                    handle.write((" ".join(_ascii_values(row)) + "\n").encode("ascii"))
+        handle.write(("\n".join(lines) + "\n").encode("ascii"))
+        for rows in (vertex_rows, face_rows):
+            if binary:
+                handle.write(rows.tobytes())
+            else:
+                handle.writelines((" ".join(_ascii_values(row)) + "\n").encode("ascii") for row in rows.tolist())
     temporary.replace(path)
     return Path(path)
 
 
 def _ascii_values(row: tuple) -> list[str]:
+    """The tokens of one row: lists flattened, floats as their shortest round-trip text."""
     values: list[str] = []
     for value in row:
         if isinstance(value, (tuple, list, np.ndarray)):
