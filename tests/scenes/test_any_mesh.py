@@ -20,15 +20,18 @@ from tests.scenes.test_heldout_meshes import _assert_coloured, _top_down_frame
 FURNITURE = {"chair": 3, "table": 5, "bed": 11, "sofa": 10, "cabinet": 7, "toilet": 18, "sink": 15, "bathtub": 25}
 
 
-def write_building_obj(folder: Path, grey_mtl: bool, copies: int = 1) -> Path:
-    """A floor and furniture boxes, one `usemtl <name>_<k>` per object (Blender's naming), and an
-    `mtllib` line; with `grey_mtl` the MTL declares every material with the same default grey,
-    without it the MTL file is missing. `copies` repeats the furniture (more materials)."""
+def write_building_obj(folder: Path, grey_mtl: bool, copies: int = 1, object_lines: bool = False) -> Path:
+    """A floor and furniture boxes, one `usemtl <name>_<k>` per object (with `object_lines`, an
+    `o <name>_<k>` before it, as Blender exports), and an `mtllib` line; with `grey_mtl` the MTL declares
+    every material with the same default grey, without it the MTL file is missing. `copies` repeats the
+    furniture (more materials)."""
     lines = ["mtllib building.mtl"]
     offset, names = 1, []
 
     def emit(name: str, vertices: np.ndarray, faces: np.ndarray) -> None:
         nonlocal offset
+        if object_lines:
+            lines.append(f"o {name}")  # Blender writes the object name, then its material
         lines.extend(f"v {x:.4f} {y:.4f} {z:.4f}" for x, y, z in vertices)
         lines.append(f"usemtl {name}")
         lines.extend("f " + " ".join(str(i + offset) for i in face) for face in faces)
@@ -73,7 +76,8 @@ def test_a_uniform_colour_is_kept_when_asked(tmp_path: Path) -> None:
 
 
 def test_many_materials_without_mtl_warn_once(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
-    path = write_building_obj(tmp_path, grey_mtl=False, copies=10)  # 81 materials, as in the issue
+    # 81 materials and Blender's `o` lines, as in the issue (the old reader warned once per material).
+    path = write_building_obj(tmp_path, grey_mtl=False, copies=10, object_lines=True)
     with caplog.at_level(logging.WARNING):
         scene = read_labelled_mesh(path)
     assert len(scene.objects) == 81
