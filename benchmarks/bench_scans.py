@@ -20,6 +20,7 @@ Run:
 from __future__ import annotations
 
 import json
+import os
 import statistics
 import sys
 import tempfile
@@ -76,7 +77,9 @@ def main() -> None:
                 read()
                 times[name].append(time.perf_counter() - started)
         triangles = len(trimesh.load(str(next(iter(datasets.values()))[0]), process=False).faces)
-    results: dict = {"runs": RUNS, "triangles": triangles, "target_ratio": TARGET_RATIO, "datasets": {}}
+    # The machine's 1-minute load average when the runs ended (2 cores shared: ratios, not times, carry over).
+    results: dict = {"runs": RUNS, "triangles": triangles, "target_ratio": TARGET_RATIO, "datasets": {},
+                     "load_average": round(os.getloadavg()[0], 1)}
     for name in datasets:
         row = {}
         for key, label in (("trimesh_load", "trimesh.load"), ("trimesh_parse_only", "trimesh parse only"),
