@@ -69,6 +69,39 @@ class MeshFolderSource(Strict):
         "auto", description="what labels the faces: a JSON sidecar, label properties, group / material / node "
         "names, or connected components; auto takes the first the file supports, in that order")
     up_axis: Literal["y", "z"] = Field("y", description="up axis of the files")
+    scale: float = Field(1.0, gt=0, description="metres per file unit: 0.01 for centimetres, 0.001 for millimetres, "
+                         "0.0254 for inches (a scene over 1 km or under 1 m across gets a warning naming this)")
+    keep_uniform_color: bool = Field(False, description="a mesh whose faces all carry one colour (every material "
+                                     "the same default grey) is painted a palette colour per object; true keeps its colour")
+
+
+class ScanDatasetSource(Strict):
+    """A scan dataset's own folder as downloaded; scenes found by their files, Z up and metres by default."""
+
+    root: Path = Field(description="the dataset folder as downloaded (searched recursively)")
+    scenes: list[str] | None = Field(None, description="scene ids to use; all found when omitted")
+    up_axis: Literal["y", "z"] = Field("z", description="up axis of the files (the dataset's own: +Z)")
+
+
+class Matterport3dSource(ScanDatasetSource):
+    """Matterport3D scans: <scan>/house_segmentations/<scan>.house and <scan>.ply (per-face segment ids), RGB
+    from <scan>/matterport_mesh/<uuid>/<uuid>.obj (+ .mtl and JPEG textures) when present."""
+
+    textured: bool = Field(True, description="take RGB from the scan's textured matterport_mesh OBJ when present "
+                           "(labels move to its faces by nearest face centre); false: the segmentation mesh's vertex colours")
+
+
+class ScanNetSource(ScanDatasetSource):
+    """ScanNet v2 scenes (<scene>_vh_clean_2.ply, <scene>_vh_clean_2.0.010000.segs.json, <scene>.aggregation.json)
+    and ScanNet++ scenes (<scene>/scans/mesh_aligned_0.05.ply, segments.json, segments_anno.json)."""
+
+    labels_tsv: Path | None = Field(None, description="ScanNet's scannetv2-labels.combined.tsv (raw name -> mpcat40); "
+                                    "found under root when omitted; without it raw names map through our table")
+
+
+class ReplicaSource(ScanDatasetSource):
+    """Replica scenes: <scene>/habitat/mesh_semantic.ply (per-face object_id), <scene>/habitat/info_semantic.json
+    (objects and class names), colours from <scene>/mesh.ply."""
 
 
 class MvpdReleaseSource(Strict):
@@ -84,12 +117,17 @@ class SceneSources(Strict):
     procedural: ProceduralSource | None = None
     hm3dsem: Hm3dSemSource | None = None
     meshes: MeshFolderSource | None = None
+    matterport3d: Matterport3dSource | None = None
+    scannet: ScanNetSource | None = None
+    replica: ReplicaSource | None = None
     mvpd: MvpdReleaseSource | None = Field(None, description="an imported MVPd release split (import-mvpd)")
 
     @model_validator(mode="after")
     def _at_least_one(self) -> "SceneSources":
-        if not (self.procedural or self.hm3dsem or self.meshes or self.mvpd):
-            raise ValueError("name at least one scene source (procedural, hm3dsem, meshes or mvpd)")
+        if not (self.procedural or self.hm3dsem or self.meshes or self.matterport3d or self.scannet or self.replica
+                or self.mvpd):
+            raise ValueError("name at least one scene source (procedural, hm3dsem, meshes, matterport3d, scannet, "
+                             "replica or mvpd)")
         return self
 
 

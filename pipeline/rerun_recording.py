@@ -28,7 +28,7 @@ import numpy as np
 from pipeline.io.reader import LoadedVideo, VideoNotFoundError, load_video
 from pipeline.io.tables import read_dataset
 from pipeline.scenes.categories import categories
-from pipeline.scenes.meshes import palette_color
+from pipeline.scenes.scans import palette_color
 from pipeline.scenes.scene import Scene
 
 LOG = logging.getLogger(__name__)

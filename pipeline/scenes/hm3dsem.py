@@ -23,33 +23,13 @@ import numpy as np
 
 from pipeline.scenes.categories import category_of
 from pipeline.scenes.glb import GlbMesh, read_glb, write_glb
+from pipeline.scenes.scans import to_world, transfer_face_labels, up_axis_transform
 from pipeline.scenes.scene import Scene, SceneError, SceneObject
 
 HEADER = "HM3D Semantic Annotations"
 VOID_COLOR = 0x000000
 SEMANTIC_TXT = ".semantic.txt"
 SEMANTIC_GLB = ".semantic.glb"
-
-
-def up_axis_transform(up_axis: str) -> np.ndarray:
-    """4x4 transform from a file frame with the given up axis into the world (+Y up)."""
-    if up_axis == "y":
-        return np.eye(4)
-    if up_axis == "z":
-        return np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
-    raise SceneError(f"up_axis {up_axis!r}: use 'y' or 'z'")
-
-
-def to_world(vertices: np.ndarray, transform: np.ndarray) -> np.ndarray:
-    """Apply a 4x4 transform to (V, 3) float32 vertices; exact for axis permutations."""
-    if np.array_equal(transform, np.eye(4)):
-        return vertices
-    rotation = transform[:3, :3]
-    if np.all(np.isin(rotation, (-1.0, 0.0, 1.0))) and not transform[:3, 3].any():
-        # A signed permutation: move columns instead of multiplying, so no rounding happens.
-        columns = [np.argmax(np.abs(row)) for row in rotation]
-        return np.stack([rotation[i, c] * vertices[:, c] for i, c in enumerate(columns)], 1).astype(np.float32)
-    return (vertices.astype(np.float64) @ rotation.T + transform[:3, 3]).astype(np.float32)
 
 
 # ----------------------------------------------------------------------------------------- reading
@@ -118,14 +98,7 @@ def _face_colors(mesh: GlbMesh, path: Path) -> np.ndarray:
 
 def _align_labels(geometry: GlbMesh, semantic: GlbMesh, semantic_colors: np.ndarray) -> np.ndarray:
     """Semantic colour for each face of the geometry mesh (same order, or nearest face centre)."""
-    if len(geometry.faces) == len(semantic.faces) and np.array_equal(geometry.faces, semantic.faces) \
-            and np.array_equal(geometry.vertices, semantic.vertices):
-        return semantic_colors
-    from scipy.spatial import cKDTree
-
-    centres = semantic.vertices[semantic.faces].mean(axis=1)
-    _, nearest = cKDTree(centres).query(geometry.vertices[geometry.faces].mean(axis=1))
-    return semantic_colors[nearest]
+    return transfer_face_labels(semantic.vertices, semantic.faces, semantic_colors, geometry.vertices, geometry.faces)
 
 
 def _appearance(mesh: GlbMesh) -> dict:

@@ -18,8 +18,12 @@ colours, textures including MTL `map_Kd`). What labels the faces is chosen by `l
     components  each connected component of the mesh is one `misc` object.
     auto        (default) the first of those that the file supports, in that order.
 
-Colours: vertex colours, else material base colours and textures. A mesh with no colour at all is
-painted with a palette colour per object (and a warning), so objects stay distinguishable.
+Colours: vertex colours, else material base colours and textures. A mesh with no colour at all (an
+OBJ whose MTL file is missing included: its `usemtl` names still make the objects), or whose faces
+all carry one colour (every material Blender's default grey; `keep_uniform_color` keeps it), is
+painted with a palette colour per object (and one warning), so objects stay distinguishable.
+`scale` gives the metres of one file unit; a scene over 1 km or under 1 m across gets one warning
+naming the likely unit. Warnings are one line per file and kind, however many materials it has.
 Faces with fewer than 3 corners or zero area are dropped and counted in `Scene.degenerate_faces`.
 """
 
@@ -34,7 +38,7 @@ import numpy as np
 
 from pipeline.scenes.categories import categories, category_of
 from pipeline.scenes.glb import name_label
-from pipeline.scenes.hm3dsem import to_world, up_axis_transform
+from pipeline.scenes.scans import palette_vertex_colors, scan_scene
 from pipeline.scenes.scene import Scene, SceneError, SceneObject
 from pipeline.scenes.trimesh_reader import MESH_SUFFIXES, MeshPart, read_parts
 
@@ -134,7 +138,7 @@ def _labels_components(parts: list[MeshPart], path: Path) -> tuple[np.ndarray, d
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    vertices, faces = _merged_geometry(parts)
+    vertices, faces = merged_geometry(parts)
     # Corners at the same position join, so a component is not split by duplicated vertices.
     _, same = np.unique(vertices, axis=0, return_inverse=True)
     corners = same.reshape(-1)[faces]
@@ -155,42 +159,32 @@ LABELLERS = {"sidecar": _labels_sidecar, "properties": _labels_properties, "name
 # ------------------------------------------------------------------------------------- appearance
 
 
-def _merged_geometry(parts: list[MeshPart]) -> tuple[np.ndarray, np.ndarray]:
+def merged_geometry(parts: list[MeshPart]) -> tuple[np.ndarray, np.ndarray]:
     offsets = np.cumsum([0] + [len(p.vertices) for p in parts[:-1]])
     vertices = np.concatenate([p.vertices for p in parts]).astype(np.float32)
     faces = np.concatenate([p.faces + o for p, o in zip(parts, offsets, strict=True)])
     return vertices, faces
 
 
-def palette_color(object_id: int) -> np.ndarray:
-    """A stable, distinct-looking colour per object id (golden-ratio hue steps)."""
-    import colorsys
-
-    hue = (object_id * 0.618033988749895) % 1.0
-    return np.round(np.array(colorsys.hsv_to_rgb(hue, 0.55, 0.9)) * 255).astype(np.uint8)
-
-
-def _vertex_colors(parts: list[MeshPart], face_ids: np.ndarray) -> np.ndarray:
-    """(V, 3) colours: the part's vertex or base colour, a palette colour per object where none."""
+def vertex_colors_of(parts: list[MeshPart], face_ids: np.ndarray, palette: bool = False) -> np.ndarray:
+    """(V, 3) colours: the part's vertex or base colour, a palette colour per object where none (or
+    everywhere, when `palette`)."""
     blocks, start = [], 0
     for part in parts:
-        if part.vertex_colors is not None:
+        if palette or not part.coloured:
+            block = palette_vertex_colors(len(part.vertices), part.faces, face_ids[start: start + len(part.faces)])
+        elif part.vertex_colors is not None:
             block = part.vertex_colors
         elif part.base_color is not None:
             block = np.tile(part.base_color, (len(part.vertices), 1))
-        elif part.texture is not None:
-            block = np.tile(part.texture.reshape(-1, 3).mean(axis=0).astype(np.uint8), (len(part.vertices), 1))
         else:
-            block = np.full((len(part.vertices), 3), 160, np.uint8)
-            ids = face_ids[start: start + len(part.faces)]
-            for object_id in np.unique(ids):
-                block[part.faces[ids == object_id].reshape(-1)] = palette_color(int(object_id))
+            block = np.tile(part.texture.reshape(-1, 3).mean(axis=0).astype(np.uint8), (len(part.vertices), 1))  # type: ignore[union-attr]
         blocks.append(block.astype(np.uint8))
         start += len(part.faces)
     return np.concatenate(blocks)
 
 
-def _textured(parts: list[MeshPart], vertex_colors: np.ndarray, faces: np.ndarray) -> dict:
+def textured_appearance(parts: list[MeshPart], vertex_colors: np.ndarray, faces: np.ndarray) -> dict:
     """Scene texture fields: each part's texture, and one-pixel textures of the other faces' colours."""
     textures: list[np.ndarray] = []
     uv_blocks, material_blocks = [], []
@@ -217,8 +211,14 @@ def _textured(parts: list[MeshPart], vertex_colors: np.ndarray, faces: np.ndarra
 # ----------------------------------------------------------------------------------------- assembly
 
 
-def read_labelled_mesh(path: Path, up_axis: str = "y", labels: str = "auto") -> Scene:
-    """Read a mesh file as a labelled Scene (see module doc); raises SceneError naming the file."""
+def read_labelled_mesh(path: Path, up_axis: str = "y", labels: str = "auto", scale: float = 1.0,
+                       keep_uniform_color: bool = False) -> Scene:
+    """Read a mesh file as a labelled Scene (see module doc); raises SceneError naming the file.
+
+    Args:
+        scale: metres per file unit (vertices are multiplied by it).
+        keep_uniform_color: keep a colour every face shares instead of painting a palette colour per object.
+    """
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise SceneError(f"{path}: unsupported mesh format {path.suffix!r}; use one of {', '.join(MESH_SUFFIXES)}")
@@ -229,37 +229,50 @@ def read_labelled_mesh(path: Path, up_axis: str = "y", labels: str = "auto") -> 
     parts, short_faces = read_parts(path)
     mode = choose_labels(parts, path, labels)
     face_ids, objects, unknown = LABELLERS[mode](parts, path)
-    vertices, faces = _merged_geometry(parts)
-    appearance = {"vertex_colors": _vertex_colors(parts, face_ids)}
-    if any(p.texture is not None for p in parts):
-        appearance = _textured(parts, appearance["vertex_colors"], faces)
-    if not any(p.coloured for p in parts):
+    vertices, faces = merged_geometry(parts)
+    if scale != 1.0:
+        vertices = (vertices.astype(np.float64) * scale).astype(np.float32)
+    _warn_unlikely_unit(path, vertices, scale)
+    if parts[0].missing_library:
+        LOG.warning("%s: its material library %s is missing; objects come from its %d `usemtl` (and `o` / `g`) names, "
+                    "painted a palette colour each", path, parts[0].missing_library, len(objects))
+    elif not any(p.coloured for p in parts):
         LOG.warning("%s: no vertex colours, materials or textures; painting each object a palette colour", path)
-    keep = _non_degenerate(vertices, faces)
-    dropped = int((~keep).sum()) + short_faces
-    if dropped:
-        LOG.warning("%s: dropped %d degenerate faces (fewer than 3 corners or zero area)", path, dropped)
-        faces, face_ids = faces[keep], face_ids[keep]
-        if appearance.get("face_uvs") is not None:
-            appearance["face_uvs"], appearance["face_material"] = appearance["face_uvs"][keep], appearance["face_material"][keep]
-    present = {int(i) for i in np.unique(face_ids) if i > 0}
-    transform = up_axis_transform(up_axis)
-    LOG.info("%s: %d triangles, %d objects from labels: %s", path, len(faces), len(present), mode)
-    return Scene(
-        scene_id=path.stem, vertices=to_world(vertices, transform), faces=faces.astype(np.int32),
-        face_object_ids=face_ids.astype(np.uint32), objects={i: o for i, o in sorted(objects.items()) if i in present},
-        to_world=transform, source="mesh", path=str(path), unknown_colors=int(unknown),
-        degenerate_faces=dropped, **appearance,
-    )
+    LOG.info("%s: labels: %s", path, mode)
+    return scan_scene(path.stem, "mesh", path, vertices, faces, face_ids, objects, up_axis,
+                      _appearance(parts, face_ids, faces, path, keep_uniform_color), unknown, short_faces)
 
 
-def _non_degenerate(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(F,) True for faces with three distinct corners and non-zero area (float64 cross product)."""
-    distinct = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    a = vertices[faces[:, 0]].astype(np.float64)
-    first, second = vertices[faces[:, 1]] - a, vertices[faces[:, 2]] - a
-    # The cross product is zero exactly when the area is; its components are compared, no norm needed.
-    area = first[:, 1] * second[:, 2] != first[:, 2] * second[:, 1]
-    area |= first[:, 2] * second[:, 0] != first[:, 0] * second[:, 2]
-    area |= first[:, 0] * second[:, 1] != first[:, 1] * second[:, 0]
-    return distinct & area
+def _appearance(parts: list[MeshPart], face_ids: np.ndarray, faces: np.ndarray, path: Path,
+                keep_uniform_color: bool) -> dict:
+    """Scene colour fields: textures when any part has one, else vertex colours; one colour on every
+    face (Blender's default grey) becomes a palette colour per object unless `keep_uniform_color`."""
+    colors = vertex_colors_of(parts, face_ids)
+    if any(p.texture is not None for p in parts):
+        return textured_appearance(parts, colors, faces)
+    if keep_uniform_color or not any(p.coloured for p in parts) or not _one_colour(colors, faces):
+        return {"vertex_colors": colors}
+    LOG.warning("%s: every face has the same colour %s (as Blender's default material); painting each object a "
+                "palette colour so that frames are not flat; set keep_uniform_color: true to keep it",
+                path, tuple(int(c) for c in colors[faces[0, 0]]))
+    return {"vertex_colors": vertex_colors_of(parts, face_ids, palette=True)}
+
+
+def _one_colour(vertex_colors: np.ndarray, faces: np.ndarray) -> bool:
+    """True when every face corner has the same colour."""
+    corners = vertex_colors[faces.reshape(-1)]
+    return bool((corners == corners[0]).all())
+
+
+def _warn_unlikely_unit(path: Path, vertices: np.ndarray, scale: float) -> None:
+    """One warning when the scene's extent suggests its unit is not metres (over 1 km or under 1 m across)."""
+    extent = float((vertices.max(axis=0) - vertices.min(axis=0)).max()) if len(vertices) else 0.0
+    if extent > 1000.0:
+        # A building is 2-200 m across: over 20 km of "metres" is millimetres more likely than centimetres.
+        unit, factor = ("millimetres", 0.001) if extent > 20000.0 else ("centimetres", 0.01)
+        LOG.warning("%s: the scene is %.0f m across; its unit is likely %s: set scale: %g (now %g) on the meshes source",
+                    path, extent, unit, scale * factor, scale)
+    elif 0 < extent < 1.0:
+        LOG.warning("%s: the scene is %.3g m across, smaller than a room; its unit is likely not metres (kilometres, or a "
+                    "model scaled to a unit box): set scale on the meshes source (now %g) to the metres of one file unit",
+                    path, extent, scale)

@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
-from pipeline.config import Hm3dSemSource, MeshFolderSource, ProceduralSource, SceneSources
+from pipeline.config import (Hm3dSemSource, Matterport3dSource, MeshFolderSource, ProceduralSource, ReplicaSource,
+                             ScanDatasetSource, ScanNetSource, SceneSources)
 from pipeline.scenes.trimesh_reader import MESH_SUFFIXES
 from pipeline.scenes.procedural import procedural_scene_id
 from pipeline.scenes.scene import Scene, SceneError, SceneRef
@@ -27,9 +28,15 @@ def list_scene_refs(sources: SceneSources) -> list[SceneRef]:
     if sources.procedural is not None:
         refs.extend(_procedural_refs(sources.procedural))
     if sources.hm3dsem is not None:
-        refs.extend(_found(_hm3dsem_refs(sources.hm3dsem), "hm3dsem", sources.hm3dsem.root, f"*{SEMANTIC_TXT}"))
+        refs.extend(_hm3dsem_refs(sources.hm3dsem))
     if sources.meshes is not None:
         refs.extend(_found(_mesh_refs(sources.meshes), "meshes", sources.meshes.root, sources.meshes.pattern))
+    if sources.matterport3d is not None:
+        refs.extend(_matterport3d_refs(sources.matterport3d))
+    if sources.scannet is not None:
+        refs.extend(_scannet_refs(sources.scannet))
+    if sources.replica is not None:
+        refs.extend(_replica_refs(sources.replica))
     refs.sort(key=lambda ref: ref.scene_id)
     ids = [ref.scene_id for ref in refs]
     duplicates = sorted({i for i in ids if ids.count(i) > 1})
@@ -59,18 +66,67 @@ def _procedural_refs(source: ProceduralSource) -> list[SceneRef]:
 
 def _hm3dsem_refs(source: Hm3dSemSource) -> list[SceneRef]:
     found = {path.name[: -len(SEMANTIC_TXT)]: path for path in sorted(source.root.rglob(f"*{SEMANTIC_TXT}"))}
+    refs = _wanted_refs(found, source, "hm3dsem", f"*{SEMANTIC_TXT}", load_hm3dsem, (("up_axis", source.up_axis),))
+    for ref in refs:
+        _refuse_basis_glb(Path(ref.path), ref.scene_id)
+    return refs
+
+
+def _refuse_basis_glb(semantic_txt: Path, scene_id: str) -> None:
+    """A scene whose folder holds habitat's `<id>.basis.glb` but not the plain `<id>.glb`: refused while the job
+    is listed, since no well-kept Python package decodes Basis Universal textures (KHR_texture_basisu)."""
+    plain = semantic_txt.with_name(f"{scene_id}.glb")
+    basis = semantic_txt.with_name(f"{scene_id}.basis.glb")
+    if basis.is_file() and not plain.is_file():
+        raise SceneError(f"{basis}: Basis-compressed textures (habitat's variant) are not decoded; put HM3D's plain "
+                         f"{plain.name} (the hm3d-*-glb download) beside it")
+
+
+def _wanted_refs(found: dict[str, Path], source: ScanDatasetSource | Hm3dSemSource, kind: str, marker: str,
+                 loader: Callable[[SceneRef], Scene], options: tuple[tuple[str, object], ...]) -> list[SceneRef]:
+    """Refs of the scenes a dataset source wants (all found, or its `scenes` list); one-line errors when
+    a listed scene or every scene is missing."""
+    if not found:
+        raise SceneError(f"{source.root}: no scene file matches {marker!r}; fix scenes.{kind}.root")
     wanted = source.scenes if source.scenes is not None else sorted(found)
     missing = [scene_id for scene_id in wanted if scene_id not in found]
     if missing:
-        raise SceneError(f"{source.root}: no {missing[0]}{SEMANTIC_TXT} found; fix scenes.hm3dsem.scenes or the root")
-    options = (("up_axis", source.up_axis),)
-    return [SceneRef(scene_id, "hm3dsem", str(found[scene_id]), load_hm3dsem, options) for scene_id in wanted]
+        raise SceneError(f"{source.root}: no {marker.replace('*', missing[0])} found; fix scenes.{kind}.scenes or the root")
+    return [SceneRef(scene_id, kind, str(found[scene_id]), loader, options) for scene_id in wanted]
+
+
+def _matterport3d_refs(source: Matterport3dSource) -> list[SceneRef]:
+    found = {path.stem: path for path in sorted(source.root.rglob("*.house"))}
+    options = (("textured", source.textured), ("up_axis", source.up_axis))
+    return _wanted_refs(found, source, "matterport3d", "*.house", load_matterport3d, options)
+
+
+def _scannet_refs(source: ScanNetSource) -> list[SceneRef]:
+    from pipeline.scenes.scannet import LABELS_TSV, SCANNET_MESH, SCANNETPP_MESH, scene_files
+
+    meshes = sorted(source.root.rglob(f"*{SCANNET_MESH}"))
+    meshes += sorted(p for p in source.root.rglob(SCANNETPP_MESH) if p.parent.name == "scans")
+    found = {scene_files(path)[0]: path for path in meshes}
+    tsv = source.labels_tsv or next(iter(sorted(source.root.rglob(LABELS_TSV))), None)
+    if source.labels_tsv is not None and not source.labels_tsv.is_file():
+        raise SceneError(f"{source.labels_tsv}: missing; fix scenes.scannet.labels_tsv or drop it")
+    options = (("labels_tsv", str(tsv or "")), ("up_axis", source.up_axis))
+    return _wanted_refs(found, source, "scannet", f"*{SCANNET_MESH} or */scans/{SCANNETPP_MESH}", load_scannet, options)
+
+
+def _replica_refs(source: ReplicaSource) -> list[SceneRef]:
+    from pipeline.scenes.replica import SEMANTIC_MESH
+
+    found = {path.parent.parent.name: path for path in sorted(source.root.rglob(SEMANTIC_MESH))
+             if path.parent.name == "habitat"}
+    return _wanted_refs(found, source, "replica", f"*/habitat/{SEMANTIC_MESH}", load_replica, (("up_axis", source.up_axis),))
 
 
 def _mesh_refs(source: MeshFolderSource) -> list[SceneRef]:
     paths = sorted(p for p in source.root.glob(source.pattern)
                    if p.is_file() and p.suffix.lower() in MESH_SUFFIXES and not _is_hm3dsem_part(p))
-    options = (("labels", source.labels), ("up_axis", source.up_axis))
+    options = (("keep_uniform_color", source.keep_uniform_color), ("labels", source.labels), ("scale", source.scale),
+               ("up_axis", source.up_axis))
     return [SceneRef(_mesh_scene_id(path), "mesh", str(path), load_mesh, options) for path in paths]
 
 
@@ -110,10 +166,35 @@ def load_mesh(ref: SceneRef) -> Scene:
     from pipeline.scenes.meshes import read_labelled_mesh
 
     return read_labelled_mesh(Path(ref.path), up_axis=str(ref.option("up_axis", "y")),
-                              labels=str(ref.option("labels", "auto")))
+                              labels=str(ref.option("labels", "auto")), scale=float(ref.option("scale", 1.0)),  # type: ignore[arg-type]
+                              keep_uniform_color=bool(ref.option("keep_uniform_color", False)))
 
 
-_LOADERS = {"procedural": load_procedural, "hm3dsem": load_hm3dsem, "mesh": load_mesh}
+def load_matterport3d(ref: SceneRef) -> Scene:
+    """Read a Matterport3D scan from its `.house` (pipeline/scenes/matterport3d.py)."""
+    from pipeline.scenes.matterport3d import read_matterport3d
+
+    return read_matterport3d(Path(ref.path), up_axis=str(ref.option("up_axis", "z")),
+                             textured=bool(ref.option("textured", True)))
+
+
+def load_scannet(ref: SceneRef) -> Scene:
+    """Read a ScanNet v2 or ScanNet++ scene from its mesh (pipeline/scenes/scannet.py)."""
+    from pipeline.scenes.scannet import read_scannet
+
+    return read_scannet(Path(ref.path), up_axis=str(ref.option("up_axis", "z")),
+                        labels_tsv=str(ref.option("labels_tsv", "")))
+
+
+def load_replica(ref: SceneRef) -> Scene:
+    """Read a Replica scene from its `habitat/mesh_semantic.ply` (pipeline/scenes/replica.py)."""
+    from pipeline.scenes.replica import read_replica
+
+    return read_replica(Path(ref.path), up_axis=str(ref.option("up_axis", "z")))
+
+
+_LOADERS = {"procedural": load_procedural, "hm3dsem": load_hm3dsem, "mesh": load_mesh, "matterport3d": load_matterport3d,
+            "scannet": load_scannet, "replica": load_replica}
 
 
 def ref_from_row(row: Mapping[str, Any]) -> SceneRef:
@@ -139,8 +220,10 @@ def load_scene_file(path: str | Path, up_axis: str | None = None) -> Scene:
     """Load a scene from a file path, choosing the reader from the name.
 
     An HM3DSem trio is recognised by its `.semantic.txt` (or a `.glb` with a `.semantic.txt` beside
-    it, or the `.semantic.glb`); a folder holding exactly one trio works too. Anything else with a
-    mesh suffix is read as a plain labelled mesh. `up_axis` defaults to "z" for HM3DSem, "y" otherwise.
+    it, or the `.semantic.glb`); a folder holding exactly one trio works too. A Matterport3D `.house`,
+    a ScanNet `_vh_clean_2.ply` / ScanNet++ `scans/mesh_aligned_0.05.ply` and a Replica
+    `habitat/mesh_semantic.ply` are read with their dataset's files. Anything else with a mesh suffix
+    is read as a plain labelled mesh. `up_axis` defaults to "z" for HM3DSem and the datasets, "y" otherwise.
     """
     path = Path(path)
     if path.is_dir():
@@ -149,7 +232,11 @@ def load_scene_file(path: str | Path, up_axis: str | None = None) -> Scene:
             raise SceneError(f"{path}: holds {len(trios)} *{SEMANTIC_TXT} files; give the scene's file instead")
         path = trios[0]
     trio_text = _hm3dsem_text_of(path)
-    if trio_text is not None:
+    dataset_loader = _dataset_loader_of(path)
+    if dataset_loader is not None:
+        scene = dataset_loader(SceneRef(path.stem, "file", str(path), dataset_loader,
+                                        (("up_axis", up_axis),) if up_axis else ()))
+    elif trio_text is not None:
         from pipeline.scenes.hm3dsem import read_hm3dsem
 
         scene = read_hm3dsem(trio_text, up_axis=up_axis or "z")
@@ -161,6 +248,21 @@ def load_scene_file(path: str | Path, up_axis: str | None = None) -> Scene:
         raise SceneError(f"{path}: not a scene file; give a .semantic.txt or a mesh ({', '.join(MESH_SUFFIXES)})")
     scene.validate()
     return scene
+
+
+def _dataset_loader_of(path: Path) -> Callable[[SceneRef], Scene] | None:
+    """The scan dataset reader a file's name belongs to (a Matterport3D `.house`, a ScanNet / ScanNet++
+    mesh, a Replica `habitat/mesh_semantic.ply`), or None."""
+    from pipeline.scenes.replica import SEMANTIC_MESH
+    from pipeline.scenes.scannet import SCANNET_MESH, SCANNETPP_MESH
+
+    if path.suffix == ".house":
+        return load_matterport3d
+    if path.name.endswith(SCANNET_MESH) or (path.name == SCANNETPP_MESH and path.parent.name == "scans"):
+        return load_scannet
+    if path.name == SEMANTIC_MESH and path.parent.name == "habitat":
+        return load_replica
+    return None
 
 
 def _hm3dsem_text_of(path: Path) -> Path | None:

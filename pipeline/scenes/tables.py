@@ -14,7 +14,7 @@ SCENES = register(
     "scenes",
     [
         column("scene_id", pa.string(), "scene id, e.g. 'proc-000003' or '00808-y9hTuugGdiq'"),
-        column("source", pa.string(), "'procedural', 'hm3dsem' or 'mesh'"),
+        column("source", pa.string(), "'procedural', 'hm3dsem', 'mesh', 'matterport3d', 'scannet' or 'replica' (schemas/scan_sources.md)"),
         column("path", pa.string(), "file the scene is read from ('' for procedural houses)"),
         column("options", pa.string(), "JSON of the loader options (seed, detail, up_axis, ...)"),
         column("triangles", pa.int64(), "triangle count"),
@@ -40,7 +40,8 @@ OBJECTS = register(
     "objects",
     [
         column("scene_id", pa.string(), "scene id"),
-        column("object_id", pa.uint32(), "object id > 0 (HM3DSem: the hex colour 0xRRGGBB as an integer)"),
+        column("object_id", pa.uint32(), "object id > 0 (HM3DSem: the hex colour 0xRRGGBB as an integer; Matterport3D, "
+               "ScanNet, ScanNet++, Replica: the dataset's instance id + 1)"),
         column("raw_name", pa.string(), "annotator's raw name"),
         column("mpcat40_index", pa.int16(), "mpcat40 category index (0 = void: the raw name is not mapped)"),
         column("mpcat40_name", pa.string(), "mpcat40 category name"),

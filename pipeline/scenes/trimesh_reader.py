@@ -2,7 +2,8 @@
 
 The one place files are parsed (OBJ + MTL, PLY, GLB / glTF, STL, OFF): `read_parts` gives each node
 of the file's scene graph as a `MeshPart` (node transform applied) with its label properties, OBJ
-group names, vertex colours, material colour or texture. Both the `meshes:` source (meshes.py) and
+group names, vertex colours, material colour or texture. PLY files go through our own reader
+(pipeline/scenes/ply.py), which keeps per-face properties on their faces in binary files and quads. Both the `meshes:` source (meshes.py) and
 the HM3DSem reader (glb.py -> hm3dsem.py) build on it. trimesh parses a 1 M-triangle GLB in about a
 fifth of the time the project's former hand-written GLB reader took (benchmarks/bench_mesh_readers.py).
 Anything unreadable raises SceneError naming the file (and the OBJ line where one is to blame).
@@ -19,6 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pipeline.scenes.ply import PlyMesh, read_ply
 from pipeline.scenes.scene import SceneError
 
 if TYPE_CHECKING:
@@ -46,6 +48,8 @@ class MeshPart:
         vertex_colors: (V, 3) uint8, or None.
         base_color: (3,) uint8 material colour, or None.
         texture: (H, W, 3) uint8 image with `uvs` ((V, 2), v up), or None.
+        missing_library: the `mtllib` file an OBJ names but lacks ("" otherwise); its parts are still
+            split and named by `usemtl`, without colours.
     """
 
     name: str
@@ -57,6 +61,7 @@ class MeshPart:
     base_color: np.ndarray | None = None
     texture: np.ndarray | None = None
     uvs: np.ndarray | None = None
+    missing_library: str = ""
 
     @property
     def coloured(self) -> bool:
@@ -67,14 +72,17 @@ class MeshPart:
 # ------------------------------------------------------------------------------------------ reading
 
 
-def _load_trimesh(path: Path) -> trimesh.Scene:
+def _load_trimesh(path: Path, obj: ObjFaces | None = None) -> trimesh.Scene:
     import trimesh  # lazily: about 0.5 s to import, and listing scenes never needs it
 
     if path.suffix.lower() in (".glb", ".gltf"):
         check_gltf(path)
+    resolver = None
+    if obj is not None and obj.missing_library:
+        resolver = _stand_in_materials(path, obj.groups.keys())
     try:
         # One geometry per material keeps OBJ `usemtl` groups apart; process=False keeps vertex order.
-        return trimesh.load_scene(str(path), process=False)
+        return trimesh.load_scene(str(path), process=False, resolver=resolver)
     except (ValueError, KeyError, IndexError, TypeError, AttributeError, UnicodeDecodeError, OSError,
             NotImplementedError, struct.error) as error:
         where = _first_bad_obj_line(path) if path.suffix.lower() == ".obj" else None
@@ -83,6 +91,25 @@ def _load_trimesh(path: Path) -> trimesh.Scene:
         if path.suffix.lower() == ".glb":
             raise _corrupt_glb(path, f"{type(error).__name__}: {error}") from None
         raise SceneError(f"{path}: trimesh cannot read the mesh ({type(error).__name__}: {error}); re-export the file") from None
+
+
+def _stand_in_materials(path: Path, names: object) -> object:
+    """A trimesh resolver for an OBJ whose MTL file is missing: it serves a stand-in MTL declaring every
+    `usemtl` name, so trimesh keeps one named geometry per material (without one it names none)."""
+    from trimesh.resolvers import FilePathResolver
+
+    stand_in = "".join(f"newmtl {name}\n" for name in sorted(names) if name).encode("utf-8")  # type: ignore[attr-defined]
+
+    class StandInResolver(FilePathResolver):
+        def get(self, name: str) -> bytes:
+            try:
+                return super().get(name)
+            except (FileNotFoundError, ValueError):
+                if name.strip().lower().endswith(".mtl"):
+                    return stand_in
+                raise
+
+    return StandInResolver(str(path))
 
 
 def _corrupt_glb(path: Path, what: str) -> SceneError:
@@ -165,24 +192,39 @@ def _appearance(geometry: object) -> dict:
     return {"base_color": np.asarray(factor, np.uint8)[:3]} if factor is not None else {}
 
 
-def _ply_labels(geometry: object) -> np.ndarray | None:
-    """Per-face labels from a PLY face (or vertex) label property, or None."""
-    raw = getattr(geometry, "metadata", {}).get("_ply_raw")
-    if not raw:
-        return None
-    faces = np.asarray(geometry.faces)  # type: ignore[attr-defined]
-    face_data, vertex_data = raw.get("face", {}).get("data", {}), raw.get("vertex", {}).get("data", {})
-    face_key = next((k for k in LABEL_PROPERTIES if k in face_data), None)
+def _ply_part(path: Path) -> tuple[MeshPart, int]:
+    """A PLY file as one part, read by our own reader (pipeline/scenes/ply.py: binary and ASCII, any
+    polygon size, per-face properties kept on their faces), and its count of polygons under 3 corners."""
+    mesh = read_ply(path)
+    labels = None
+    face_key = next((k for k in LABEL_PROPERTIES if k in mesh.face), None)
+    vertex_key = next((k for k in LABEL_PROPERTIES if k in mesh.vertex), None)
     if face_key is not None:
-        per_polygon = np.asarray(face_data[face_key]).reshape(-1).astype(np.int64)
-        if len(per_polygon) == len(faces):
-            return per_polygon
-        sizes = np.array([len(c) for c in face_data["vertex_indices"]])
-        return np.repeat(per_polygon, np.maximum(sizes - 2, 0))
-    vertex_key = next((k for k in LABEL_PROPERTIES if k in vertex_data), None)
-    if vertex_key is not None:
-        return np.asarray(vertex_data[vertex_key]).reshape(-1).astype(np.int64)[faces[:, 0]]
-    return None
+        labels = mesh.per_triangle(face_key).astype(np.int64)
+    elif vertex_key is not None:
+        labels = mesh.vertex[vertex_key].astype(np.int64)[mesh.triangles[:, 0]]
+    part = MeshPart("", mesh.vertices.astype(np.float64), mesh.triangles, face_labels=labels,
+                    vertex_colors=mesh.vertex_colors(), **_ply_texture(mesh))
+    if part.vertex_colors is None and part.texture is None and all(c in mesh.face for c in ("red", "green", "blue")):
+        # Per-face colours: every face gets corners of its own, so neighbours of another colour do not blend.
+        corners = mesh.triangles.reshape(-1)
+        rgb = np.stack([mesh.per_triangle(c) for c in ("red", "green", "blue")], axis=1).astype(np.uint8)
+        part.vertices, part.faces = part.vertices[corners], np.arange(len(corners), dtype=np.int64).reshape(-1, 3)
+        part.vertex_colors = np.repeat(rgb, 3, axis=0)
+    return part, mesh.short_polygons
+
+
+def _ply_texture(mesh: PlyMesh) -> dict:
+    """`texture` and `uvs` of a PLY naming its image in a `comment TextureFile <name>` line, else {}."""
+    name = next((c.split(maxsplit=1)[1] for c in mesh.comments if c.startswith("TextureFile") and len(c.split()) > 1), None)
+    keys = next((k for k in (("texture_u", "texture_v"), ("s", "t"), ("u", "v")) if all(c in mesh.vertex for c in k)), None)
+    if name is None or keys is None or not (mesh.path.parent / name).is_file():
+        return {}
+    from PIL import Image
+
+    with Image.open(mesh.path.parent / name) as image:
+        texture = np.asarray(image.convert("RGB"), np.uint8)
+    return {"texture": texture, "uvs": np.stack([mesh.vertex[k] for k in keys], axis=1).astype(np.float32)}
 
 
 def _attribute_labels(geometry: object) -> np.ndarray | None:
@@ -202,15 +244,18 @@ class ObjFaces:
     groups: dict[str, list[str]]
     short_faces: int  # `f` lines with fewer than 3 corners (trimesh drops them)
     any_group: bool
+    missing_library: str = ""  # the `mtllib` file named but absent beside the OBJ
 
 
 def _scan_obj_faces(path: Path) -> ObjFaces:
     """Each triangle's group name, in the order trimesh emits them (per material, then file order)."""
     groups: dict[str, list[str]] = {}
-    group, material, short, any_group = "", "", 0, False
+    group, material, short, any_group, missing = "", "", 0, False, ""
     with path.open(encoding="utf-8", errors="replace") as handle:
         for line in handle:
             head = line[:7]
+            if head.startswith("mtllib") and not missing and not (path.parent / line[6:].strip()).is_file():
+                missing = line[6:].strip()
             if head.startswith(("f ", "f\t")):
                 corners = len(line.split()) - 1
                 if corners < 3:
@@ -221,16 +266,19 @@ def _scan_obj_faces(path: Path) -> ObjFaces:
                 group, any_group = line[2:].strip(), True
             elif head.startswith("usemtl"):
                 material = line[6:].strip()
-    return ObjFaces(groups, short, any_group)
+    return ObjFaces(groups, short, any_group, missing)
 
 
 def read_parts(path: Path) -> tuple[list[MeshPart], int]:
     """Every placed geometry of a mesh file (file frame) and the count of faces with < 3 corners."""
     if not path.is_file():
         raise SceneError(f"{path}: no such file; check the scene folder holds it")
-    scene = _load_trimesh(path)
+    if path.suffix.lower() == ".ply":
+        part, short_faces = _ply_part(path)
+        return [part], short_faces
     obj = _scan_obj_faces(path) if path.suffix.lower() == ".obj" else None
-    parts = []
+    scene = _load_trimesh(path, obj)
+    parts, ungrouped = [], []
     for node in scene.graph.nodes_geometry:
         matrix, geometry_name = scene.graph[node]
         geometry = scene.geometry[geometry_name]
@@ -240,13 +288,21 @@ def read_parts(path: Path) -> tuple[list[MeshPart], int]:
         if not np.array_equal(matrix, np.eye(4)):
             vertices = vertices @ np.asarray(matrix)[:3, :3].T + np.asarray(matrix)[:3, 3]
         faces = np.asarray(geometry.faces, np.int64)
-        labels = _ply_labels(geometry)
-        labels = labels if labels is not None else _attribute_labels(geometry)
+        labels = _attribute_labels(geometry)
         name = _part_name(path, geometry, str(node), obj)
         part = MeshPart(name, vertices, faces, face_labels=labels, **_appearance(geometry))
+        if obj is not None and obj.missing_library:
+            part.base_color = None  # the stand-in materials carry no colour of the file's
+            part.missing_library = obj.missing_library
         if obj is not None and obj.any_group:
-            part.face_groups = _obj_groups_of(path, obj, geometry, len(faces))
+            part.face_groups = _obj_groups_of(obj, geometry, len(faces))
+            if part.face_groups is None:
+                ungrouped.append(name)
         parts.append(part)
+    if ungrouped:
+        # One line per file, however many materials: a scan can have hundreds.
+        LOG.warning("%s: %d materials have another triangle count than their `f` lines give (e.g. %s); their `o` / `g` "
+                    "names are ignored and their material names label them", path, len(ungrouped), ", ".join(map(repr, ungrouped[:3])))
     if not parts:
         raise SceneError(f"{path}: the mesh is empty (0 triangles); check the file was exported with geometry")
     return parts, (obj.short_faces if obj is not None else 0)
@@ -260,13 +316,11 @@ def _part_name(path: Path, geometry: object, node: str, obj: ObjFaces | None) ->
     return node if path.suffix.lower() in (".glb", ".gltf") else ""
 
 
-def _obj_groups_of(path: Path, obj: ObjFaces, geometry: object, count: int) -> list[str] | None:
-    """The `o` / `g` name of each triangle trimesh gave for one material, or None (with a warning) when
-    the file's `f` lines do not give the same number of triangles (then material names label it)."""
+def _obj_groups_of(obj: ObjFaces, geometry: object, count: int) -> list[str] | None:
+    """The `o` / `g` name of each triangle trimesh gave for one material, or None when the file's `f`
+    lines do not give the same number of triangles (then material names label it)."""
     material = getattr(getattr(geometry.visual, "material", None), "name", None) or ""  # type: ignore[attr-defined]
     groups = obj.groups.get(str(material)) if len(obj.groups) > 1 else next(iter(obj.groups.values()), [])
     if groups is None or len(groups) != count:
-        LOG.warning("%s: material %r has %d triangles but its `f` lines give %d; its `o` / `g` names are ignored",
-                    path, material, count, len(groups or []))
         return None
     return groups
