@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import logging
 import os
-import re
 import shutil
 import socket
 import time
@@ -36,6 +35,8 @@ from pipeline.runtime.markers import (  # noqa: F401 - Marker and atomic_write_t
     Marker,
     atomic_write_text,
     code_version,
+    is_plain_name,
+    is_run_path,
     describe_files,
     marker_text,
 )
@@ -57,16 +58,6 @@ JOB_FILE = "job.yaml"
 STAGING = "_staging"
 
 log = logging.getLogger(__name__)
-
-
-# A name the run looks up (a video, a split, an embodiment): no separator and no leading dot, so it can
-# never leave the folder it names (`..`, `/abs`, `e/v` are not plain).
-PLAIN_NAME = re.compile(r"[A-Za-z0-9_\-][A-Za-z0-9_.\-]*")
-
-
-def is_plain_name(name: str) -> bool:
-    """True when `name` may be looked up inside one folder of the run (see PLAIN_NAME)."""
-    return PLAIN_NAME.fullmatch(name) is not None
 
 
 def run_root(run: "RunFolder | str | os.PathLike[str]") -> Path:
@@ -310,12 +301,22 @@ class RunFolder:
         rerun never leaves stale rows or videos behind.
         """
         for relative in outputs:
-            target = self.root / relative
+            target = self.inside(relative)
             target.parent.mkdir(parents=True, exist_ok=True)
             _replace(staging / relative, target)
         for relative in sorted(set(previous_outputs) - set(outputs)):
-            _remove(self.root / relative)
+            _remove(self.inside(relative))
         shutil.rmtree(staging, ignore_errors=True)
+
+    def inside(self, relative: str) -> Path:
+        """The local path of an output of the run, after checking that it stays inside the run: a plain
+        relative path (`is_run_path`) whose folders are no links leading elsewhere. Markers are checked when
+        read; this is the last guard before anything is moved or deleted (RunFolderError otherwise)."""
+        path = self.root / relative
+        if not is_run_path(relative) or not path.parent.resolve().is_relative_to(self.root.resolve()):
+            raise RunFolderError(f"{self.root}: refusing to write or delete {relative!r}, which is not a plain "
+                                 "relative path inside the run")
+        return path
 
     def log_path(self, stage: str, unit: str) -> Path:
         path = self.root / "logs" / stage / f"{unit}.log"
