@@ -17,6 +17,7 @@ import time
 from typing import Callable, Literal
 
 from pipeline.runtime.attempt import append_to_unit_log, execute_unit
+from pipeline.runtime.lock import LeaseLostError
 from pipeline.runtime.object_store import STORAGE_ENVIRONMENT
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit
@@ -60,7 +61,8 @@ def run_inline(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[s
             spent = time.perf_counter() - started
             if spent / len(outcomes) * (len(units) - index) > budget_s:
                 break
-        outcome = execute_unit(stage, str(run.root), unit, attempts[unit.id])
+        run.check_lease()
+        outcome = execute_unit(stage, str(run.root), unit, attempts[unit.id], run.fence)
         outcomes.append(outcome)
         on_unit(outcome)
     return outcomes
@@ -111,13 +113,19 @@ def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[s
     in_flight: dict[object, tuple[Unit, float]] = {}
     outcomes: list[UnitOutcome] = []
     while pending or in_flight:
+        _check_lease(run, in_flight)
         while pending and len(in_flight) < limit:
             unit = pending.pop()
-            in_flight[task.remote(stage_ref, run.location, unit, attempts[unit.id])] = (unit, time.monotonic())
+            ref = task.remote(stage_ref, run.location, unit, attempts[unit.id], run.fence)
+            in_flight[ref] = (unit, time.monotonic())
         ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=1.0)
         for ref in ready:
             unit, _ = in_flight.pop(ref)
-            outcome = _collect(ref, stage, unit, attempts[unit.id], run)
+            try:
+                outcome = _collect(ref, stage, unit, attempts[unit.id], run)
+            except LeaseLostError:
+                _cancel(in_flight)
+                raise
             outcomes.append(outcome)
             on_unit(outcome)
         for ref, (unit, submitted) in list(in_flight.items()):
@@ -133,6 +141,23 @@ def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[s
     return outcomes
 
 
+def _check_lease(run: RunFolder, in_flight: dict) -> None:
+    """Stop the stage when the driver's lease is lost: cancel the units in flight (their commits would be
+    refused by the fence anyway) and raise LeaseLostError."""
+    try:
+        run.check_lease()
+    except LeaseLostError:
+        _cancel(in_flight)
+        raise
+
+
+def _cancel(in_flight: dict) -> None:
+    import ray
+
+    for ref in in_flight:
+        ray.cancel(ref, force=True)
+
+
 def _collect(ref: object, stage: Stage, unit: Unit, attempt: int, run: RunFolder) -> UnitOutcome:
     import ray
     from ray.exceptions import RayError
@@ -140,6 +165,9 @@ def _collect(ref: object, stage: Stage, unit: Unit, attempt: int, run: RunFolder
     try:
         outcome = ray.get(ref)
     except RayError as error:  # the worker died more often than max_retries, or the task was lost
+        lost = getattr(error, "cause", None)
+        if isinstance(lost, LeaseLostError):  # the unit's fence found another driver on the run: stop
+            raise LeaseLostError(str(lost)) from None
         message = " ".join(str(error).split())[:300]
         return UnitOutcome(stage.name, unit.id, "failed", attempt + stage.job.runtime.max_retries,
                            type(error).__name__, message, str(run.log_path(stage.name, unit.id).relative_to(run.root)))

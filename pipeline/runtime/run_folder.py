@@ -28,6 +28,7 @@ import pyarrow as pa
 import yaml
 
 from pipeline.config import ConfigError, Job, job_from_resolved
+from pipeline.runtime.lock import Lease, check_fence
 from pipeline.runtime import markers as marker_files
 from pipeline.runtime.markers import (  # noqa: F401 - Marker and atomic_write_text are imported from here too
     DATASET_INDEX,
@@ -97,6 +98,25 @@ class RunFolder:
         self.store = RunStore(url) if url else None
         self.location = self.store.url if self.store else str(self.root)
         self._indexed: set[str] = set()  # dataset index entries known to be on the store
+        # The driver's run lock while it runs (`hold`), and the owner id its commits are fenced with (also
+        # handed to the units it starts): a commit checks that the lock still names it (lock.check_fence).
+        self.lease: Lease | None = None
+        self.fence = ""
+
+    def hold(self, lease: Lease) -> None:
+        """Commit from now on only while `lease` (this driver's run lock) holds."""
+        self.lease, self.fence = lease, lease.owner
+
+    def check_lease(self) -> None:
+        """LeaseLostError when this driver's lease is lost (in memory, no I/O: before each unit starts)."""
+        if self.lease is not None:
+            self.lease.check()
+
+    def check_fence(self) -> None:
+        """LeaseLostError unless the run lock still names the driver this process commits for (a read of it)."""
+        self.check_lease()
+        if self.fence:
+            check_fence(self, self.fence)
 
     # ------------------------------------------------------------------------------------ job
     @classmethod
@@ -234,8 +254,10 @@ class RunFolder:
 
         The old marker goes first: a process that dies during the commit leaves a unit that is simply
         not done. The manifest (size and CRC-32C of every file) is taken from the staged files, which
-        were just written and are read back from the page cache.
+        were just written and are read back from the page cache. The fence is checked before anything
+        changes and again before the marker: a driver that lost the run lock commits nothing more.
         """
+        self.check_fence()
         previous = self.marker(stage, unit)
         if previous is not None:
             self.drop_marker(stage, unit)
@@ -249,6 +271,7 @@ class RunFolder:
             self.commit(staging, outputs, previous.outputs if previous else [])
         marker = Marker(stage, unit, config_hash, code_version(), outputs, rows, round(seconds, 3), attempt, host,
                         finished_at, info or {}, files, node=node, keys=keys)
+        self.check_fence()
         self.write_marker(marker)
         if self.store is not None and previous is not None:  # the old attempt's objects, now named by nobody
             self.store.remove(sorted(set(previous.keys.values()) - set(keys.values())))
@@ -291,8 +314,9 @@ class RunFolder:
             return
         try:
             self.store.put_file(self.log_path(stage, unit), f"logs/{stage}/{unit}.log")
-        except OSError as error:
-            log.warning("%s: log of %s/%s not uploaded (%s)", self.location, stage, unit, error)
+        except Exception as error:  # noqa: BLE001 - an outage raises botocore's or aiohttp's errors, no OSError
+            log.warning("%s: log of %s/%s not uploaded (%s: %s)", self.location, stage, unit, type(error).__name__,
+                        " ".join(str(error).split())[:200])
 
     def commit(self, staging: Path, outputs: list[str], previous_outputs: list[str]) -> None:
         """Move the staged `outputs` (files or Zarr stores) into place, replacing earlier versions.
