@@ -363,20 +363,27 @@ def _damage_path(root: Path, stage: str, unit: str) -> Path:
     return Path(root) / STATE / stage / f"{unit}{DAMAGE_SUFFIX}"
 
 
+# Damage notes this process found but could not write (a read-only run folder), by note path: so that the
+# rest of the command (`status --verify` shows the table after verifying) still sees what it found.
+_UNWRITTEN_NOTES: dict[str, dict] = {}
+
+
 def record_damage(root: Path, marker: Marker, problems: list[Damage]) -> None:
     """Remember damage found by reading (a checksum, an unreadable part) so that `rerun` repairs the unit.
 
     The note names the marker it judged (`finished_at`): a unit committed again since is not affected.
-    A read-only run folder keeps no note; the damage is then found again by the next verify.
+    A read-only run folder keeps no note (this process remembers it); the next verify finds it again.
     """
     store = store_of(root)
     if store is not None:
         store_markers.update_damage(store, marker.stage, [(marker, problems)])
         return
     note = {"finished_at": marker.finished_at, "problems": [asdict(p) for p in problems]}
+    path = _damage_path(root, marker.stage, marker.unit)
     try:
-        atomic_write_text(_damage_path(root, marker.stage, marker.unit), json.dumps(note, indent=1))
+        atomic_write_text(path, json.dumps(note, indent=1))
     except OSError as error:
+        _UNWRITTEN_NOTES[str(path)] = note
         log.warning("cannot record damage of %s/%s: %s", marker.stage, marker.unit, error)
 
 
@@ -385,8 +392,11 @@ def recorded_damage(root: Path, marker: Marker) -> list[Damage]:
     store = store_of(root)
     if store is not None:
         return store_markers.recorded_damage(marker, store_markers.damage_notes(store, marker.stage))
+    path = _damage_path(root, marker.stage, marker.unit)
+    note = _UNWRITTEN_NOTES.get(str(path))
     try:
-        note = json.loads(_damage_path(root, marker.stage, marker.unit).read_text(encoding="utf-8"))
+        if note is None:
+            note = json.loads(path.read_text(encoding="utf-8"))
         if note["finished_at"] != marker.finished_at:
             return []
         return [Damage(**p) for p in note["problems"]]
@@ -402,7 +412,10 @@ def clear_damage(root: Path, stage: str, unit: str) -> None:
     if store is not None:
         store_markers.update_damage(store, stage, cleared=[unit])
         return
-    _damage_path(root, stage, unit).unlink(missing_ok=True)
+    path = _damage_path(root, stage, unit)
+    _UNWRITTEN_NOTES.pop(str(path), None)
+    if path.exists():  # never unlink a note that is not there: on a read-only file system that fails (EROFS)
+        path.unlink(missing_ok=True)
 
 
 def atomic_write_text(path: Path, text: str) -> None:

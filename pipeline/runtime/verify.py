@@ -8,6 +8,7 @@ or Ray is asked for: reading is the limit, so on one machine threads are as fast
 
 from __future__ import annotations
 
+import logging
 import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -17,6 +18,8 @@ from pipeline.runtime.executors import ExecutorName, ray_is_running
 from pipeline.runtime.markers import Damage, Marker, check_files, clear_damage, marked_stages, record_damage, stage_markers
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.store_markers import update_damage
+
+log = logging.getLogger(__name__)
 
 BATCH_BYTES = 512 * 2**20
 # auto: Ray pays for itself only when there is much to read (several nodes reading a shared store).
@@ -51,8 +54,17 @@ def verify_run(run: RunFolder, executor: ExecutorName = "auto", address: str | N
         if problems:
             record_damage(run.root, marker, problems)
         else:
-            clear_damage(run.root, marker.stage, marker.unit)
+            _forget_damage(run, marker)
     return damaged
+
+
+def _forget_damage(run: RunFolder, marker: Marker) -> None:
+    """Drop an earlier damage note of a unit that passed; a read-only run folder keeps it (with a warning)
+    and the verify still answers: `status` then shows the old note until a writable verify clears it."""
+    try:
+        clear_damage(run.root, marker.stage, marker.unit)
+    except OSError as error:
+        log.warning("cannot clear the damage note of %s/%s: %s", marker.stage, marker.unit, error)
 
 
 def _check(marker: Marker, root: str) -> list[Damage]:
