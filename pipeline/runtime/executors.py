@@ -11,14 +11,13 @@ enforced, which is why only small work runs inline unless `--executor local` ask
 from __future__ import annotations
 
 import logging
-import os
 import sys
 import time
 from typing import Callable, Literal
 
 from pipeline.runtime.attempt import append_to_unit_log, execute_unit
 from pipeline.runtime.lock import LeaseLostError
-from pipeline.runtime.object_store import STORAGE_ENVIRONMENT
+from pipeline.runtime.object_store import storage_environment, use_storage_environment
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit
 from pipeline.runtime.status import UnitOutcome
@@ -82,15 +81,15 @@ def _run_adaptively(stage: Stage, run: RunFolder, units: list[Unit], attempts: d
 # ------------------------------------------------------------------------------------------ Ray
 
 
-def storage_runtime_env(run: RunFolder) -> dict:
-    """For a run on object storage: the driver's storage variables (endpoint, credentials) for the workers.
+def execute_unit_on_worker(environment: dict[str, str], stage: Stage, location: str, unit: Unit, attempt: int,
+                           fence: str) -> UnitOutcome:
+    """`execute_unit` in a Ray worker, after taking the driver's storage variables (`environment`).
 
-    Passed in memory to Ray, never written into the run; on a cluster they are usually set on every node.
+    Credentials travel as this task's argument, in memory, and never through Ray's `runtime_env`: Ray
+    writes a task's runtime_env into its session logs (readable by every user of the machine).
     """
-    if run.store is None:
-        return {}
-    env = {name: os.environ[name] for name in STORAGE_ENVIRONMENT if name in os.environ}
-    return {"runtime_env": {"env_vars": env}} if env else {}
+    use_storage_environment(environment)
+    return execute_unit(stage, location, unit, attempt, fence)
 
 
 def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[str, int], address: str | None,
@@ -102,11 +101,11 @@ def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[s
 
     ensure_ray(address)
     resources = stage.resources()
-    task = ray.remote(execute_unit).options(
+    task = ray.remote(execute_unit_on_worker).options(
         num_cpus=resources.cpus, memory=int(resources.memory_gb * 2**30),
         max_retries=stage.job.runtime.max_retries, retry_exceptions=False, name=f"mvpd.{stage.name}",
-        **storage_runtime_env(run),
     )
+    environment = storage_environment(run.store.url if run.store else None)
     stage_ref = ray.put(stage)
     limit = stage.job.runtime.max_in_flight or max(1, int(ray.cluster_resources().get("CPU", 1) // resources.cpus))
     pending = list(reversed(units))
@@ -116,7 +115,7 @@ def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[s
         _check_lease(run, in_flight)
         while pending and len(in_flight) < limit:
             unit = pending.pop()
-            ref = task.remote(stage_ref, run.location, unit, attempts[unit.id], run.fence)
+            ref = task.remote(environment, stage_ref, run.location, unit, attempts[unit.id], run.fence)
             in_flight[ref] = (unit, time.monotonic())
         ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=1.0)
         for ref in ready:

@@ -11,6 +11,7 @@ from pipeline.runtime.executor import ProgressCallback, StageOrderError, StagePl
 from pipeline.runtime.executors import ExecutorName
 from pipeline.runtime.failures import stop_on_storage_failure
 from pipeline.runtime.lock import run_lock
+from pipeline.runtime.object_store import remote_url
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.stages import JOB_STAGES, make_stage
 
@@ -43,7 +44,7 @@ def submit(job: Job, run_dir: str | Path, stages: list[str] | None = None, addre
     A failure of the storage (a full disk, an unreachable store) stops the driver with RunStoppedError (one
     line), after the run lock is released.
     """
-    with stop_on_storage_failure(run_dir):
+    with stop_on_storage_failure(remote_url(run_dir) or run_dir):
         run = RunFolder.prepare(run_dir)
         with run_lock(run) as lock:
             run.hold(lock)
@@ -55,7 +56,7 @@ def rerun(run_dir: str | Path, stage: str, force: bool = False, address: str | N
           observer: Observer | None = None, executor: ExecutorName = "auto") -> JobReport:
     """Run one stage of an existing run again: failed, missing, stale and damaged units, or all with `force`
     (storage failures as in `submit`)."""
-    with stop_on_storage_failure(run_dir):
+    with stop_on_storage_failure(remote_url(run_dir) or run_dir):
         run = RunFolder.open(run_dir)
         with run_lock(run) as lock:
             run.hold(lock)
