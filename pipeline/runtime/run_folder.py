@@ -21,14 +21,15 @@ import os
 import shutil
 import socket
 import time
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import pyarrow as pa
 import yaml
 
 from pipeline.config import ConfigError, Job, job_from_resolved
-from pipeline.runtime.lock import Lease, check_fence
+from pipeline.runtime.lock import Lease, check_fence, run_lock
 from pipeline.runtime import markers as marker_files
 from pipeline.runtime.markers import (  # noqa: F401 - Marker and atomic_write_text are imported from here too
     DATASET_INDEX,
@@ -103,9 +104,15 @@ class RunFolder:
         self.lease: Lease | None = None
         self.fence = ""
 
-    def hold(self, lease: Lease) -> None:
-        """Commit from now on only while `lease` (this driver's run lock) holds."""
-        self.lease, self.fence = lease, lease.owner
+    @contextmanager
+    def locked(self) -> Iterator[Lease]:
+        """Hold the run lock (local, or on the store) while the block runs; its commits are fenced by it."""
+        with run_lock(self) as lock:
+            self.lease, self.fence = lock, lock.owner
+            try:
+                yield lock
+            finally:
+                self.lease, self.fence = None, ""
 
     def check_lease(self) -> None:
         """LeaseLostError when this driver's lease is lost (in memory, no I/O: before each unit starts)."""

@@ -10,7 +10,6 @@ from pipeline.config import Job
 from pipeline.runtime.executor import ProgressCallback, StageOrderError, StagePlan, StageReport, run_stage
 from pipeline.runtime.executors import ExecutorName
 from pipeline.runtime.failures import stop_on_storage_failure
-from pipeline.runtime.lock import run_lock
 from pipeline.runtime.object_store import remote_url
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.stages import JOB_STAGES, make_stage
@@ -46,8 +45,7 @@ def submit(job: Job, run_dir: str | Path, stages: list[str] | None = None, addre
     """
     with stop_on_storage_failure(remote_url(run_dir) or run_dir):
         run = RunFolder.prepare(run_dir)
-        with run_lock(run) as lock:
-            run.hold(lock)
+        with run.locked():
             run.save_job(job)
             return _run(job, run, stages or list(JOB_STAGES), False, address, observer, executor)
 
@@ -58,8 +56,7 @@ def rerun(run_dir: str | Path, stage: str, force: bool = False, address: str | N
     (storage failures as in `submit`)."""
     with stop_on_storage_failure(remote_url(run_dir) or run_dir):
         run = RunFolder.open(run_dir)
-        with run_lock(run) as lock:
-            run.hold(lock)
+        with run.locked():
             return _run(run.job(), run, [stage], force, address, observer, executor)
 
 

@@ -158,8 +158,7 @@ def test_a_lapsed_lease_stops_commits_and_leaves_the_new_owner_alone(s3, outage,
     monkeypatch.setattr(lock_module, "STALE_SECONDS", 2.0)  # a lease of 1 s
     url = s3.url("runs/outage-lease")
     run = RunFolder(url)
-    with RemoteRunLock(run.store) as lock:
-        run.hold(lock)
+    with run.locked() as lock:
         outage.stop()
         assert wait_for(lambda: lock.lost is not None, 10), "the lease never lapsed"
         time.sleep(2.5)  # the lock is stale now: another driver takes it over, straight on the server
