@@ -61,6 +61,23 @@ def is_run_path(path: str) -> bool:
     return isinstance(path, str) and RUN_PATH.fullmatch(path) is not None
 
 
+# Many paths at once, one per line: one regex call for a marker's ~40 paths instead of one each.
+_RUN_PATH_LINES = re.compile(rf"(?:{RUN_PATH.pattern}\n)*")
+
+
+def first_bad_run_path(paths: Iterable[str]) -> str | None:
+    """The first of `paths` that is not a run path (`is_run_path`), None when all are."""
+    paths = list(paths)
+    try:
+        lines = "".join(f"{path}\n" for path in paths)
+        # As many lines as paths: a path holding a line break is no run path, even if each line would be.
+        if lines.count("\n") == len(paths) and _RUN_PATH_LINES.fullmatch(lines) is not None:
+            return None
+    except TypeError:  # not a string: found below
+        pass
+    return next(path for path in paths if not is_run_path(path))
+
+
 @dataclass(frozen=True)
 class OutputFile:
     """One committed file: path relative to the run folder ('/'-separated), size in bytes, CRC-32C (hex)."""
@@ -264,9 +281,9 @@ def marker_problem(marker: Marker, name: str | None, file_paths: Iterable[str] |
         return f"its file {name!r} is not named after its unit {marker.unit!r}"
     if not isinstance(marker.outputs, list) or not isinstance(marker.keys, dict):
         return "outputs or keys are of the wrong type"
-    for path in [*marker.outputs, *(file_paths or ())]:
-        if not is_run_path(path):
-            return f"path {path!r} is not a plain relative path inside the run"
+    bad = first_bad_run_path([*marker.outputs, *(file_paths or ())])
+    if bad is not None:
+        return f"path {bad!r} is not a plain relative path inside the run"
     prefix = f"_attempts/{marker.stage}/{marker.unit}/"
     for path, key in marker.keys.items():
         if not (isinstance(key, str) and is_run_path(path) and key.startswith(prefix) and key.endswith(f"/{path}")

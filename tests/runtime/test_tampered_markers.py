@@ -52,7 +52,8 @@ def test_a_marker_naming_paths_outside_the_run_is_never_followed(tiny, tmp_path)
     assert tiny.marker("tiny", "a").outputs == ["tiny/part-a.parquet", "tiny_files/a.txt"]
 
 
-@pytest.mark.parametrize("bad", ["job.yaml", "_state/lock.json", "tiny/../../x", "tiny//x", "/tiny/x", "tiny/.x"])
+@pytest.mark.parametrize("bad", ["job.yaml", "_state/lock.json", "tiny/../../x", "tiny//x", "/tiny/x", "tiny/.x",
+                                 "tiny/a\ntiny/b", 7])
 def test_outputs_must_be_plain_paths_of_run_data(tiny, bad):
     data = json.loads(tiny.marker_path("tiny", "a").read_text())
     data["outputs"].append(bad)
