@@ -9,11 +9,15 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import socket
+import time
 from pathlib import Path
 
 import pytest
 
 from pipeline.runtime.executor import plan_stage, run_stage
+from pipeline.runtime.lock import STALE_SECONDS, RunLock, RunLockedError
 from pipeline.runtime.marker_index import LocalMarkerFolder, _encode
 from pipeline.runtime.markers import OutputFile, marker_text, parse_marker, stage_markers
 from pipeline.runtime.run_folder import RunFolder, RunFolderError
@@ -92,3 +96,18 @@ def test_commit_refuses_to_delete_through_a_link_out_of_the_run(tiny, tmp_path):
     with pytest.raises(RunFolderError, match="not a plain relative path inside the run"):
         tiny.commit(tiny.staging("tiny", "a"), [], ["linked/precious.txt"])
     assert (beside / "precious.txt").is_file()
+
+
+@pytest.mark.parametrize("host", ["this", "elsewhere"])
+def test_a_tampered_lock_file_is_judged_by_its_age_never_by_what_it_says(tmp_path, host):
+    lock = tmp_path / "_state" / "lock.json"
+    lock.parent.mkdir(parents=True)
+    lock.write_text(json.dumps({"host": socket.gethostname() if host == "this" else host, "pid": "../../victim",
+                                "heartbeat": "/etc/passwd"}))
+    with pytest.raises(RunLockedError, match="already being run"):
+        with RunLock(tmp_path):
+            pass
+    old = time.time() - STALE_SECONDS - 5
+    os.utime(lock, (old, old))
+    with RunLock(tmp_path):
+        assert json.loads(lock.read_text())["pid"] == os.getpid()
