@@ -101,9 +101,16 @@ def _close(connection: socket.socket) -> None:
 
 @pytest.fixture
 def outage(s3: S3Server, monkeypatch) -> Iterator[Outage]:
-    """The driver's endpoint goes through the proxy; botocore does not retry, so an outage is seen at once."""
+    """The driver's endpoint goes through the proxy; botocore does not retry, so an outage is seen at once.
+
+    s3fs keeps one client per set of options: the driver's clients are made afresh for the proxy, and the
+    session's client (`s3.fs`, shared with the code under test in other modules) is put back afterwards, so
+    their listing caches stay one and the same.
+    """
     host, port = s3.endpoint.removeprefix("http://").split(":")
     proxy = Outage((host, int(port)))
+    clients = type(s3.fs)._cache  # fsspec's instance cache (no public way to put an instance back)
+    saved = dict(clients)
     monkeypatch.setenv("AWS_ENDPOINT_URL", proxy.endpoint)
     monkeypatch.setenv("AWS_MAX_ATTEMPTS", "1")
     forget_clients()
@@ -113,6 +120,7 @@ def outage(s3: S3Server, monkeypatch) -> Iterator[Outage]:
         proxy.stop()
         monkeypatch.undo()
         forget_clients()
+        clients.update(saved)
 
 
 def lock_record(s3: S3Server, url: str) -> dict | None:
