@@ -16,6 +16,7 @@ from pipeline.config import ConfigError, Job, load_job
 from pipeline.io.dataset_stats import COMPARISON_COLUMNS, SPLIT_ROWS, StatsError, dataset_stats, write_stats_picture
 from pipeline.io.query import DEFAULT_TIMEOUT_S, QueryError, QueryTimeout, query, result_table, write_result
 from pipeline.runtime.executor import StageOrderError, StagePlan
+from pipeline.runtime.failures import RunStoppedError
 from pipeline.runtime.lock import RunLockedError
 from pipeline.runtime.run_folder import RunFolder, RunFolderError
 from pipeline.runtime.runner import JobReport, Observer, rerun, submit
@@ -103,6 +104,8 @@ def submit_command(
                             executor.value)
     except USAGE_ERRORS as error:
         fail(str(error))
+    except RunStoppedError as error:  # the disk or the store failed under the driver: one line, exit 1
+        fail(str(error), EXIT_FAILED)
     _finish(report)
 
 
@@ -148,6 +151,8 @@ def rerun_command(
             report = rerun(run_dir, stage, all_units, address, _telling_damage(observer), executor.value)
     except USAGE_ERRORS as error:
         fail(str(error))
+    except RunStoppedError as error:  # the disk or the store failed under the driver: one line, exit 1
+        fail(str(error), EXIT_FAILED)
     _finish(report)
 
 

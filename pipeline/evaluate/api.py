@@ -21,7 +21,6 @@ from pipeline.evaluate.report import EvaluationResult, result_from_table
 from pipeline.evaluate.stage import EvaluationInputs, MvpdVsqEvaluator, VsqEvaluator
 from pipeline.runtime.executor import ProgressCallback, StagePlan, StageReport, run_stage
 from pipeline.runtime.executors import ExecutorName
-from pipeline.runtime.lock import run_lock
 from pipeline.runtime.run_folder import RunFolder
 
 StartCallback = Callable[[StagePlan], None]
@@ -86,7 +85,7 @@ def evaluate_mvpd(mvpd_root: str | Path, split: str, predictions: str | Path, wo
 
 def _run(stage: VsqEvaluator, run: RunFolder, force: bool, address: str | None, on_start: StartCallback | None,
          on_unit: ProgressCallback | None, executor: ExecutorName) -> EvaluationResult:
-    with run_lock(run):
+    with run.locked():
         report: StageReport = run_stage(stage, run, force=force, address=address, on_start=on_start, on_unit=on_unit,
                                         executor=executor)
     # Units no longer in the split were retired by `run_stage`; rows of units that failed this time

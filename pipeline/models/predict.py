@@ -28,7 +28,6 @@ from pipeline.evaluate.predictions import RLE_FOLDER
 from pipeline.models.fastspam import FastSpam, FastSpamOptions
 from pipeline.models.segmenter import SEGMENTERS, FrameInput, ModelError, Segmenter, make_segmenter
 from pipeline.runtime.executor import ProgressCallback, StagePlan, StageReport, run_stage
-from pipeline.runtime.lock import run_lock
 from pipeline.runtime.run_folder import JOB_FILE, RunFolder, atomic_write_text, run_root
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 
@@ -265,6 +264,6 @@ def predict_run(run_dir: str | Path, out: str | Path, model: ModelConfig, embodi
     target = RunFolder.create(out, job)
     atomic_write_text(out / MANIFEST, yaml.safe_dump({"identity": identity, "identity_hash": config_hash(identity)},
                                                     sort_keys=True))
-    with run_lock(target):
+    with target.locked():
         return run_stage(stage, target, force=force, address=address, on_start=on_start, on_unit=on_unit)
 

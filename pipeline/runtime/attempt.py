@@ -13,19 +13,24 @@ import time
 import traceback
 from pathlib import Path
 
+from pipeline.runtime.failures import is_no_space, no_space_line
+from pipeline.runtime.lock import LeaseLostError
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 from pipeline.runtime.status import UnitOutcome
 
 
-def execute_unit(stage: Stage, run_root: str, unit: Unit, attempt: int) -> UnitOutcome:
+def execute_unit(stage: Stage, run_root: str, unit: Unit, attempt: int, fence: str = "") -> UnitOutcome:
     """Run one unit: stage it, commit it, write its marker.
 
     `attempt` is the run folder's count for this unit (earlier runs + 1); a Ray retry after a dead
     worker adds its retry number, so the marker and status say attempt 2 when the first worker died.
+    `fence` is the owner id of the driver's run lock: the commit checks that the lock still names it.
     Errors raised by the stage become a failed outcome; a dying process leaves only its staging folder.
+    A lost lease (LeaseLostError) is raised: it is the driver's end, not this unit's failure.
     """
     run = RunFolder(run_root)  # a worker handed a store's URL reads the store: nothing is pulled first
+    run.fence = fence
     retry = ray_retry_number()
     attempt += retry
     log_file = run.log_path(stage.name, unit.id)
@@ -45,9 +50,14 @@ def execute_unit(stage: Stage, run_root: str, unit: Unit, attempt: int) -> UnitO
                                  time.time(), socket.gethostname(), result.info, node=node)
         logger.info("committed %s outputs (%s files) in %.2f s", len(marker.outputs), len(marker.files), marker.seconds)
         return UnitOutcome(stage.name, unit.id, "done", attempt, log_path=relative_log, seconds=marker.seconds)
+    except LeaseLostError as error:
+        logger.error("not committed: %s", error)
+        raise
     except Exception as error:  # noqa: BLE001 - every unit error is recorded, none escapes to Ray
         logger.error("failed: %s\n%s", error, traceback.format_exc())
-        message = " ".join(str(error).split()) or type(error).__name__
+        # A full disk is said with the path and the free space (the status table keeps it as the reason).
+        message = (no_space_line(getattr(error, "filename", None) or run.root) if is_no_space(error)
+                   else " ".join(str(error).split()) or type(error).__name__)
         return UnitOutcome(stage.name, unit.id, "failed", attempt, type(error).__name__, message, relative_log,
                            time.perf_counter() - started)
     finally:

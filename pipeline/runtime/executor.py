@@ -172,7 +172,9 @@ def run_stage(stage: Stage, run: RunFolder, force: bool = False, address: str | 
     outcomes = run_units(stage, run, plan.to_run, attempts, executor, address, on_unit) if plan.to_run else []
     statuses = {unit: outcome for (_, unit), outcome in previous.items() if unit in {u.id for u in plan.units}}
     statuses.update({o.unit: o for o in outcomes})
+    # First, so that what failed units staged is gone (on a full disk, the room the status table needs).
+    shutil.rmtree(run.root / STAGING / stage.name, ignore_errors=True)
+    run.check_fence()  # the status table is committed like a unit: only while this driver holds the run
     write_status(run.root, stage.name, statuses)
     index_stage(run.root, stage.name)  # one file of all the stage's markers, for the next reader
-    shutil.rmtree(run.root / STAGING / stage.name, ignore_errors=True)
     return StageReport(stage.name, len(plan.units), len(plan.up_to_date), outcomes, time.perf_counter() - started)

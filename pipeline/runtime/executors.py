@@ -11,13 +11,13 @@ enforced, which is why only small work runs inline unless `--executor local` ask
 from __future__ import annotations
 
 import logging
-import os
 import sys
 import time
 from typing import Callable, Literal
 
 from pipeline.runtime.attempt import append_to_unit_log, execute_unit
-from pipeline.runtime.object_store import STORAGE_ENVIRONMENT
+from pipeline.runtime.lock import LeaseLostError
+from pipeline.runtime.object_store import storage_environment, use_storage_environment
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit
 from pipeline.runtime.status import UnitOutcome
@@ -60,7 +60,8 @@ def run_inline(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[s
             spent = time.perf_counter() - started
             if spent / len(outcomes) * (len(units) - index) > budget_s:
                 break
-        outcome = execute_unit(stage, str(run.root), unit, attempts[unit.id])
+        run.check_lease()
+        outcome = execute_unit(stage, str(run.root), unit, attempts[unit.id], run.fence)
         outcomes.append(outcome)
         on_unit(outcome)
     return outcomes
@@ -80,15 +81,15 @@ def _run_adaptively(stage: Stage, run: RunFolder, units: list[Unit], attempts: d
 # ------------------------------------------------------------------------------------------ Ray
 
 
-def storage_runtime_env(run: RunFolder) -> dict:
-    """For a run on object storage: the driver's storage variables (endpoint, credentials) for the workers.
+def execute_unit_on_worker(environment: dict[str, str], stage: Stage, location: str, unit: Unit, attempt: int,
+                           fence: str) -> UnitOutcome:
+    """`execute_unit` in a Ray worker, after taking the driver's storage variables (`environment`).
 
-    Passed in memory to Ray, never written into the run; on a cluster they are usually set on every node.
+    Credentials travel as this task's argument, in memory, and never through Ray's `runtime_env`: Ray
+    writes a task's runtime_env into its session logs (readable by every user of the machine).
     """
-    if run.store is None:
-        return {}
-    env = {name: os.environ[name] for name in STORAGE_ENVIRONMENT if name in os.environ}
-    return {"runtime_env": {"env_vars": env}} if env else {}
+    use_storage_environment(environment)
+    return execute_unit(stage, location, unit, attempt, fence)
 
 
 def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[str, int], address: str | None,
@@ -100,24 +101,30 @@ def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[s
 
     ensure_ray(address)
     resources = stage.resources()
-    task = ray.remote(execute_unit).options(
+    task = ray.remote(execute_unit_on_worker).options(
         num_cpus=resources.cpus, memory=int(resources.memory_gb * 2**30),
         max_retries=stage.job.runtime.max_retries, retry_exceptions=False, name=f"mvpd.{stage.name}",
-        **storage_runtime_env(run),
     )
+    environment = storage_environment(run.store.url if run.store else None)
     stage_ref = ray.put(stage)
     limit = stage.job.runtime.max_in_flight or max(1, int(ray.cluster_resources().get("CPU", 1) // resources.cpus))
     pending = list(reversed(units))
     in_flight: dict[object, tuple[Unit, float]] = {}
     outcomes: list[UnitOutcome] = []
     while pending or in_flight:
+        _check_lease(run, in_flight)
         while pending and len(in_flight) < limit:
             unit = pending.pop()
-            in_flight[task.remote(stage_ref, run.location, unit, attempts[unit.id])] = (unit, time.monotonic())
+            ref = task.remote(environment, stage_ref, run.location, unit, attempts[unit.id], run.fence)
+            in_flight[ref] = (unit, time.monotonic())
         ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=1.0)
         for ref in ready:
             unit, _ = in_flight.pop(ref)
-            outcome = _collect(ref, stage, unit, attempts[unit.id], run)
+            try:
+                outcome = _collect(ref, stage, unit, attempts[unit.id], run)
+            except LeaseLostError:
+                _cancel(in_flight)
+                raise
             outcomes.append(outcome)
             on_unit(outcome)
         for ref, (unit, submitted) in list(in_flight.items()):
@@ -133,6 +140,23 @@ def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[s
     return outcomes
 
 
+def _check_lease(run: RunFolder, in_flight: dict) -> None:
+    """Stop the stage when the driver's lease is lost: cancel the units in flight (their commits would be
+    refused by the fence anyway) and raise LeaseLostError."""
+    try:
+        run.check_lease()
+    except LeaseLostError:
+        _cancel(in_flight)
+        raise
+
+
+def _cancel(in_flight: dict) -> None:
+    import ray
+
+    for ref in in_flight:
+        ray.cancel(ref, force=True)
+
+
 def _collect(ref: object, stage: Stage, unit: Unit, attempt: int, run: RunFolder) -> UnitOutcome:
     import ray
     from ray.exceptions import NodeDiedError, OutOfMemoryError, RayError, WorkerCrashedError
@@ -140,6 +164,9 @@ def _collect(ref: object, stage: Stage, unit: Unit, attempt: int, run: RunFolder
     try:
         outcome = ray.get(ref)
     except RayError as error:  # the worker died more often than max_retries, or Ray could not run the task
+        lost = getattr(error, "cause", None)
+        if isinstance(lost, LeaseLostError):  # the unit's fence found another driver on the run: stop
+            raise LeaseLostError(str(lost)) from None
         message = " ".join(str(error).split())[:300]
         # Only a lost worker or node is retried by Ray (max_retries times); any other failure (a runtime
         # env or an argument that could not be set up, a cancelled task) ended the first try.

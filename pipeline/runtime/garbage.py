@@ -23,7 +23,6 @@ from typing import Callable
 
 import psutil
 
-from pipeline.runtime.lock import run_lock
 from pipeline.runtime.markers import STATE
 from pipeline.runtime.object_store import ATTEMPTS, RunStore
 from pipeline.runtime.run_folder import STAGING, RunFolder
@@ -55,7 +54,7 @@ class GarbageReport:
 def collect_garbage(run: RunFolder, dry_run: bool = False, on_progress: GarbageProgress | None = None) -> GarbageReport:
     """Delete what dead attempts left behind in `run` (or only report it with `dry_run`), holding the run lock."""
     report = GarbageReport(dry_run=dry_run)
-    with run_lock(run):
+    with run.locked():
         if run.store is not None:
             _collect_store(run.store, report, on_progress)
         _collect_staging(run.root / STAGING, report)

@@ -13,6 +13,14 @@ different machines exclude each other: the lock is created with a conditional PU
 exactly one of racing creators wins), the heartbeat and a takeover of a stale lock replace it only while
 its ETag is the one read (`If-Match`), and release deletes it only while it is still ours. Nothing but
 host, pid, times and an owner id is written: never a credential.
+
+The lock is a lease. The heartbeat survives any failure of the store or the disk (it retries with backoff);
+a driver whose last successful heartbeat is older than `lease_seconds()` has lost its lease, since another
+driver may take the lock once it is STALE_SECONDS old, so it stops committing: `RunFolder.commit_unit`
+checks the fence (`check_fence`: the lock still names this driver's owner id with a fresh heartbeat)
+before it changes anything and again before the marker, and the driver checks its lease before each unit
+(`Lease.check`). A unit that finds the fence broken raises `LeaseLostError`, which stops the driver with
+one line instead of being recorded as the unit's failure.
 """
 
 from __future__ import annotations
@@ -38,25 +46,107 @@ log = logging.getLogger(__name__)
 
 HEARTBEAT_SECONDS = 20.0
 STALE_SECONDS = 120.0
+# First wait before a failed heartbeat is tried again; doubled on each failure, at most HEARTBEAT_SECONDS.
+RETRY_SECONDS = 1.0
+
+
+def lease_seconds() -> float:
+    """How old the last heartbeat may be while this driver still commits: half of STALE_SECONDS, so that a
+    driver stops well before another one may take its lock over (room for clock skew and a slow commit)."""
+    return STALE_SECONDS / 2
 
 
 class RunLockedError(RuntimeError):
     """Another live run holds the run folder."""
 
 
+class LeaseLostError(RunLockedError):
+    """This driver's lease on the run lapsed or was taken over: it must not commit anything more."""
+
+
 class RunFolderNotWritableError(RunLockedError):
     """The lock cannot be created: the run folder is on a read-only file system or not writable."""
 
 
-class RunLock:
-    """Context manager holding `_state/lock.json` for the duration of a run."""
+class Lease:
+    """What both locks share: the owner id, the heartbeat thread and the lease it keeps (module doc).
 
-    def __init__(self, run_root: Path):
-        self.path = Path(run_root) / "_state" / "lock.json"
-        self._guard = self.path.with_name(".lock.guard")
+    A subclass writes the heartbeat in `_refresh` (True while the lock is still ours) and names the run in
+    `where`; every exception of a heartbeat is survived and tried again with backoff.
+    """
+
+    where: str
+
+    def __init__(self) -> None:
+        self.owner = f"{socket.gethostname()}.{os.getpid()}.{time.time_ns()}"  # this holder, uniquely
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._started = time.time()
+        self._renewed = time.monotonic()  # when a heartbeat last reached the lock
+        self.lost: str | None = None  # why the lease is lost (None while it holds)
+
+    def _refresh(self) -> bool:
+        raise NotImplementedError
+
+    def _start_heartbeat(self) -> None:
+        self._renewed = time.monotonic()
+        self._thread = threading.Thread(target=self._beat, daemon=True, name="mvpd-lock-heartbeat")
+        self._thread.start()
+
+    def _stop_heartbeat(self) -> None:
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5)
+
+    def _beat(self) -> None:
+        """Renew the lock every HEARTBEAT_SECONDS; after a failure, again after 1, 2, 4 ... s (at most
+        HEARTBEAT_SECONDS) until it works, the lease lapses, or another driver is found holding the lock."""
+        failures = 0
+        while not self._stop.wait(_next_beat(failures)):
+            try:
+                if not self._refresh():  # judged dead and taken over: never overwrite the new owner
+                    self.lost = "another driver took the run lock over"
+                    log.error("%s: %s", self.where, self.lost)
+                    return
+                self._renewed, failures = time.monotonic(), 0
+            except Exception as error:  # noqa: BLE001 - a store raises its own types (botocore's, aiohttp's)
+                failures += 1
+                log.warning("%s: heartbeat of the run lock failed (%s: %s); trying again", self.where,
+                            type(error).__name__, " ".join(str(error).split())[:200])
+                if self._lapsed():
+                    self.lost = f"no heartbeat reached the run lock for {lease_seconds():.0f} s"
+                    log.error("%s: %s", self.where, self.lost)
+                    return
+
+    def _lapsed(self) -> bool:
+        return time.monotonic() - self._renewed > lease_seconds()
+
+    def check(self) -> None:
+        """Raise LeaseLostError (one line) when this driver must stop committing (the driver's own fence)."""
+        if self.lost is None and self._lapsed():
+            self.lost = f"no heartbeat reached the run lock for {lease_seconds():.0f} s"
+        if self.lost is not None:
+            raise LeaseLostError(lease_lost_message(self.where, self.lost))
+
+
+def _next_beat(failures: int) -> float:
+    """Seconds to the next heartbeat: HEARTBEAT_SECONDS, or a backoff after `failures` failed ones in a row."""
+    return HEARTBEAT_SECONDS if not failures else min(HEARTBEAT_SECONDS, RETRY_SECONDS * 2 ** (failures - 1))
+
+
+def lease_lost_message(where: object, why: str) -> str:
+    return (f"{where}: stopped: {why}, so another driver may be running this run; nothing more was committed "
+            "by this one (`mvpd status` shows what is done; rerun when no other driver runs it)")
+
+
+class RunLock(Lease):
+    """Context manager holding `_state/lock.json` for the duration of a run."""
+
+    def __init__(self, run_root: Path):
+        super().__init__()
+        self.path = Path(run_root) / "_state" / "lock.json"
+        self.where = str(Path(run_root))
+        self._guard = self.path.with_name(".lock.guard")
 
     def __enter__(self) -> "RunLock":
         try:
@@ -65,8 +155,7 @@ class RunLock:
         except OSError as error:
             raise RunFolderNotWritableError(f"{self.path.parent.parent}: cannot create the run lock "
                                             f"({error.strerror}); choose a writable run folder") from None
-        self._thread = threading.Thread(target=self._beat, daemon=True)
-        self._thread.start()
+        self._start_heartbeat()
         return self
 
     def _take(self) -> None:
@@ -84,13 +173,15 @@ class RunLock:
         self.release()
 
     def release(self) -> None:
-        """Stop the heartbeat and remove the lock if this process still holds it (idempotent)."""
-        self._stop.set()
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout=5)
-        with self._guarded():
-            if self._is_mine(self._holder()):
-                self.path.unlink(missing_ok=True)
+        """Stop the heartbeat and remove the lock if this process still holds it (idempotent; a failing disk
+        leaves the lock behind with a warning: its owner is gone, so it is stale for the next driver)."""
+        self._stop_heartbeat()
+        try:
+            with self._guarded():
+                if self._is_mine(self._holder()):
+                    self.path.unlink(missing_ok=True)
+        except OSError as error:
+            log.warning("%s: could not remove the run lock (%s)", self.where, error)
 
     @contextmanager
     def _guarded(self) -> Iterator[None]:
@@ -103,10 +194,10 @@ class RunLock:
             os.close(descriptor)  # closing releases the flock
 
     def _record(self) -> dict:
-        return _record(self._started)
+        return {**_record(self._started), "owner": self.owner}
 
     def _is_mine(self, holder: dict | None) -> bool:
-        return holder is not None and holder.get("pid") == os.getpid() and holder.get("host") == socket.gethostname()
+        return holder is not None and holder.get("owner") == self.owner
 
     def _try_create(self) -> bool:
         """Publish the lock with its whole content in one step; False when a lock already exists."""
@@ -121,26 +212,31 @@ class RunLock:
         return True
 
     def _holder(self) -> dict | None:
-        try:
-            data = json.loads(self.path.read_text())
-        except (FileNotFoundError, ValueError):
-            return None
-        return data if isinstance(data, dict) else None
+        return local_holder(self.path)
 
-    def _beat(self) -> None:
-        while not self._stop.wait(HEARTBEAT_SECONDS):
-            with self._guarded():
-                if not self._is_mine(self._holder()):
-                    return  # taken over (judged dead from another host): never overwrite the new owner
-                temporary = self.path.with_name(f".lock.{os.getpid()}.beat.tmp")
-                temporary.write_text(json.dumps(self._record()))
-                os.replace(temporary, self.path)
+    def _refresh(self) -> bool:
+        with self._guarded():
+            if not self._is_mine(self._holder()):
+                return False  # taken over (judged dead from another host): never overwrite the new owner
+            temporary = self.path.with_name(f".lock.{os.getpid()}.beat.tmp")
+            temporary.write_text(json.dumps(self._record()))
+            os.replace(temporary, self.path)
+            return True
+
+
+def local_holder(path: Path) -> dict | None:
+    """The record of a local lock file; None when there is none or it is unreadable."""
+    try:
+        data = json.loads(path.read_text())
+    except (FileNotFoundError, ValueError, UnicodeDecodeError):
+        return None
+    return data if isinstance(data, dict) else None
 
 
 LOCK_KEY = "_state/lock.json"
 
 
-class RemoteRunLock:
+class RemoteRunLock(Lease):
     """Context manager holding `_state/lock.json` on the object store of a remote run (see the module doc).
 
     Every change of the lock object is conditional on what this process last saw of it, so a heartbeat
@@ -149,24 +245,21 @@ class RemoteRunLock:
     """
 
     def __init__(self, store: "RunStore"):
+        super().__init__()
         self.store = store
-        self._owner = f"{socket.gethostname()}.{os.getpid()}.{time.time_ns()}"  # this holder, uniquely
+        self.where = store.url
         self._tag: str | None = None  # the ETag of the lock object as this process last wrote it
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._started = time.time()
 
     def __enter__(self) -> "RemoteRunLock":
         self._take()
-        self._thread = threading.Thread(target=self._beat, daemon=True)
-        self._thread.start()
+        self._start_heartbeat()
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.release()
 
     def _record(self) -> bytes:
-        return json.dumps({**_record(self._started), "owner": self._owner}).encode("utf-8")
+        return json.dumps({**_record(self._started), "owner": self.owner}).encode("utf-8")
 
     def _take(self) -> None:
         """Create the lock, or take over a stale one; else RunLockedError (one line)."""
@@ -191,26 +284,16 @@ class RemoteRunLock:
         raise RunLockedError(f"{self.store.url}: the run lock keeps changing hands; try again")
 
     def release(self) -> None:
-        """Stop the heartbeat and delete the lock if it is still ours (idempotent)."""
-        self._stop.set()
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout=5)
+        """Stop the heartbeat and delete the lock if it is still ours (idempotent). Any failure of the store
+        is survived with a warning: the run is over either way, and a lock left behind goes stale."""
+        self._stop_heartbeat()
         if self._tag is not None:
             try:
                 self.store.remove_object(LOCK_KEY, self._tag)
-            except OSError as error:  # the run is over either way; a lock left behind goes stale
-                log.warning("%s: could not remove the run lock (%s)", self.store.url, error)
+            except Exception as error:  # noqa: BLE001 - botocore's and aiohttp's errors are no OSError
+                log.warning("%s: could not remove the run lock (%s: %s)", self.store.url, type(error).__name__,
+                            " ".join(str(error).split())[:200])
             self._tag = None
-
-    def _beat(self) -> None:
-        while not self._stop.wait(HEARTBEAT_SECONDS):
-            try:
-                if not self._refresh():  # judged dead and taken over: never overwrite the new owner
-                    log.error("%s: the run lock was taken over by another driver", self.store.url)
-                    self._tag = None
-                    return
-            except OSError as error:  # a store hiccup: the next beat tries again, well before STALE_SECONDS
-                log.warning("%s: heartbeat of the run lock failed (%s)", self.store.url, error)
 
     def _refresh(self) -> bool:
         """Rewrite the lock with a new heartbeat while it is ours; False when another driver holds it now."""
@@ -218,18 +301,38 @@ class RemoteRunLock:
         if tag is None:
             found = self.store.read_object(LOCK_KEY)
             if found is None or not self._is_mine(_parse(found.data)):
+                self._tag = None
                 return False
             tag = found.tag  # our earlier write landed, its answer was lost and the retry was refused
         self._tag = tag
         return True
 
     def _is_mine(self, holder: dict | None) -> bool:
-        return holder is not None and holder.get("owner") == self._owner
+        return holder is not None and holder.get("owner") == self.owner
 
 
 def run_lock(run: "RunFolder") -> RunLock | RemoteRunLock:
     """The lock of a run folder: on its object store for a remote run, else the local lock file."""
     return RemoteRunLock(run.store) if run.store is not None else RunLock(run.root)
+
+
+def check_fence(run: "RunFolder", owner: str) -> None:
+    """Raise LeaseLostError unless the run's lock still names `owner` with a heartbeat younger than the lease.
+
+    Called before a commit changes anything and before its marker (in Ray workers too, which see only the
+    lock, not the driver): one small read of the lock file, or one GET of the lock object.
+    """
+    if run.store is not None:
+        found = run.store.read_object(LOCK_KEY)
+        holder = _parse(found.data) if found is not None else None
+    else:
+        holder = local_holder(run.root / "_state" / "lock.json")
+    if holder is None or holder.get("owner") != owner:
+        who = "nobody" if holder is None else f"pid {holder.get('pid')} on {holder.get('host')}"
+        raise LeaseLostError(lease_lost_message(run.location, f"the run lock is now held by {who}"))
+    age = time.time() - float(holder.get("heartbeat", 0))
+    if age > lease_seconds():
+        raise LeaseLostError(lease_lost_message(run.location, f"the run lock's last heartbeat is {age:.0f} s old"))
 
 
 def _record(started: float) -> dict:
@@ -277,10 +380,16 @@ def _is_stale(holder: dict | None, modified: float | None) -> bool:
         # Unreadable (written by an older version, or damaged): trust it until it is as old as a stopped heartbeat.
         return modified is None or time.time() - modified > STALE_SECONDS
     if holder.get("host") == socket.gethostname():
-        pid = int(holder.get("pid", -1))
+        try:
+            pid = int(holder.get("pid", -1))
+        except (TypeError, ValueError):  # not a pid: written by no driver of ours; judged by its age
+            return modified is None or time.time() - modified > STALE_SECONDS
         if not psutil.pid_exists(pid):
             return True
         recorded, actual = holder.get("process_started"), _process_started(pid)
         # Same pid, another process (the pid was reused after the owner died).
         return recorded is not None and actual is not None and abs(float(recorded) - actual) > 1.0
-    return time.time() - float(holder.get("heartbeat", 0)) > STALE_SECONDS
+    try:
+        return time.time() - float(holder.get("heartbeat", 0)) > STALE_SECONDS
+    except (TypeError, ValueError):
+        return modified is None or time.time() - modified > STALE_SECONDS

@@ -28,10 +28,12 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import fsspec
+import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from pipeline.runtime.markers import STATE, ColumnarManifest, Marker, parse_marker
+from pipeline.runtime.markers import RUN_PATH, STATE, ColumnarManifest, Marker, marker_problem, parse_marker
 from pipeline.runtime.object_store import store_of
 
 log = logging.getLogger(__name__)
@@ -227,7 +229,7 @@ def _current_rows(folder: MarkerFolder) -> tuple[dict[str, tuple[str, Marker | N
     rows = {name: row for name, row in cached.items() if listing.get(name) == row[0]}
     missing = sorted(set(listing) - set(rows))
     texts = folder.read_texts(missing)
-    rows.update({name: (listing[name], parse_marker(texts[name])) for name in missing if name in texts})
+    rows.update({name: (listing[name], parse_marker(texts[name], name)) for name in missing if name in texts})
     return rows, len(missing) + len(set(cached) - set(listing))
 
 
@@ -259,6 +261,7 @@ def _decode(data: bytes) -> dict[str, tuple[str, Marker | None]]:
     offsets = paths.offsets.to_pylist()
     base = offsets[0] if offsets else 0
     paths, sizes, crcs = paths.flatten(), sizes.flatten(), crcs.flatten()
+    tampered = _rows_with_bad_paths(paths, offsets)
     rows: dict[str, tuple[str, Marker | None]] = {}
     for index, (name, identity, header) in enumerate(zip(names, identities, headers)):
         if header is None:
@@ -266,12 +269,25 @@ def _decode(data: bytes) -> dict[str, tuple[str, Marker | None]]:
             continue
         start, length = offsets[index] - base, offsets[index + 1] - offsets[index]
         marker = Marker(**json.loads(header))
+        problem = ("a file path is not a plain relative path inside the run" if index in tampered
+                   else marker_problem(marker, name, None))
+        if problem is not None:  # never followed: the marker file is read (and judged) again instead
+            log.warning("marker index row %s ignored: %s", name, problem)
+            continue
         # The manifest stays columnar until someone asks for `files` (status needs only paths and sizes).
         del marker.files
         marker.__dict__["_manifest"] = ColumnarManifest(paths.slice(start, length), sizes.slice(start, length),
                                                         crcs.slice(start, length))
         rows[name] = (identity, marker)
     return rows
+
+
+def _rows_with_bad_paths(paths: pa.Array, offsets: list[int]) -> set[int]:
+    """Rows whose manifest holds a path that is not a plain relative path in the run (one vectorized match
+    over every path of the index: a full-scale stage's index names 2 M files)."""
+    valid = pc.match_substring_regex(paths, f"^(?:{RUN_PATH.pattern})$").fill_null(False)
+    bad = np.flatnonzero(~valid.to_numpy(zero_copy_only=False))
+    return set(np.searchsorted(np.asarray(offsets) - offsets[0], bad, side="right") - 1) if len(bad) else set()
 
 
 def _encode(rows: dict[str, tuple[str, Marker | None]]) -> bytes:

@@ -14,6 +14,7 @@ import json
 import logging
 import mmap
 import os
+import re
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -38,6 +39,43 @@ DATASET_INDEX = "_datasets"
 STATUS_STAGE = "_status"
 DAMAGE_SUFFIX = ".damaged"
 _BLOCK = 16 * 2**20
+
+# A name the run looks up (a stage, a unit, a video, a split, an embodiment): no separator and no leading
+# dot, so it can never leave the folder it names (`..`, `/abs`, `e/v` are not plain).
+_NAME = r"[A-Za-z0-9_\-][A-Za-z0-9_.\-]*"
+PLAIN_NAME = re.compile(_NAME)
+# A committed file or Zarr store, relative to the run: plain names joined by '/', at least two of them (a
+# data folder and a name in it), the first not starting with '_' (`_state/`, `_staging/` and `_attempts/`
+# are the run's own). Written for RE2 too: `marker_index` checks a whole manifest column with it.
+RUN_PATH = re.compile(rf"[A-Za-z0-9\-][A-Za-z0-9_.\-]*(?:/{_NAME})+")
+
+
+def is_plain_name(name: str) -> bool:
+    """True when `name` may be looked up inside one folder of the run (see PLAIN_NAME)."""
+    return isinstance(name, str) and PLAIN_NAME.fullmatch(name) is not None
+
+
+def is_run_path(path: str) -> bool:
+    """True when `path` is a plain relative path of a committed output inside the run (see RUN_PATH):
+    never absolute, never `..`, never the run's own bookkeeping."""
+    return isinstance(path, str) and RUN_PATH.fullmatch(path) is not None
+
+
+# Many paths at once, one per line: one regex call for a marker's ~40 paths instead of one each.
+_RUN_PATH_LINES = re.compile(rf"(?:{RUN_PATH.pattern}\n)*")
+
+
+def first_bad_run_path(paths: Iterable[str]) -> str | None:
+    """The first of `paths` that is not a run path (`is_run_path`), None when all are."""
+    paths = list(paths)
+    try:
+        lines = "".join(f"{path}\n" for path in paths)
+        # As many lines as paths: a path holding a line break is no run path, even if each line would be.
+        if lines.count("\n") == len(paths) and _RUN_PATH_LINES.fullmatch(lines) is not None:
+            return None
+    except TypeError:  # not a string: found below
+        pass
+    return next(path for path in paths if not is_run_path(path))
 
 
 @dataclass(frozen=True)
@@ -170,7 +208,7 @@ def marker_path(root: Path, stage: str, unit: str) -> Path:
 def read_marker(path: Path) -> Marker | None:
     """The marker at `path`, or None when it is missing, unreadable or from before manifests (version 1)."""
     try:
-        return parse_marker(path.read_text(encoding="utf-8"))
+        return parse_marker(path.read_text(encoding="utf-8"), path.name)
     except (FileNotFoundError, UnicodeDecodeError):
         return None
 
@@ -210,16 +248,48 @@ def marker_text(marker: Marker) -> str:
     return json.dumps(data, indent=1, sort_keys=True)
 
 
-def parse_marker(text: str) -> Marker | None:
-    """A marker from its JSON text; None when unreadable or from before manifests (version 1)."""
+def parse_marker(text: str, name: str | None = None) -> Marker | None:
+    """A marker from its JSON text; None when unreadable, from before manifests (version 1), or naming a
+    path that is not a plain one inside the run (`marker_problem`); `name` is its file name, `<unit>.json`."""
     try:
         data = json.loads(text)
         if data.get("version", 1) < MARKER_VERSION:
             return None  # no manifest: nothing can be checked, so it proves nothing; the unit runs again
         data["files"] = [OutputFile(**f) for f in data["files"]]
-        return Marker(**data)
+        marker = Marker(**data)
     except (ValueError, TypeError, KeyError, AttributeError):
         return None  # a damaged marker proves nothing: the unit runs again
+    problem = marker_problem(marker, name, [f.path for f in marker.files])
+    if problem is not None:
+        log.warning("marker %s/%s ignored: %s; the unit runs again", marker.stage, marker.unit, problem)
+        return None
+    return marker
+
+
+def marker_problem(marker: Marker, name: str | None, file_paths: Iterable[str] | None) -> str | None:
+    """Why a marker must not be followed (None when it may), checked before any path it names is used.
+
+    A tampered marker naming `../../x`, `/abs` or `job.yaml` would otherwise make a commit delete or a
+    reader read outside the unit's outputs. Stage and unit must be plain names (they make the marker's
+    own paths) matching its file `name`; every output and file a plain relative path in the run; on a
+    store, every key under the unit's `_attempts/<stage>/<unit>/<attempt>/` and ending in its logical path.
+    `file_paths` None: checked by the caller (the marker index checks its manifest column in one go).
+    """
+    if not (is_plain_name(marker.stage) and is_plain_name(marker.unit)):
+        return f"stage {marker.stage!r} or unit {marker.unit!r} is not a plain name"
+    if name is not None and name != f"{marker.unit}.json":
+        return f"its file {name!r} is not named after its unit {marker.unit!r}"
+    if not isinstance(marker.outputs, list) or not isinstance(marker.keys, dict):
+        return "outputs or keys are of the wrong type"
+    bad = first_bad_run_path([*marker.outputs, *(file_paths or ())])
+    if bad is not None:
+        return f"path {bad!r} is not a plain relative path inside the run"
+    prefix = f"_attempts/{marker.stage}/{marker.unit}/"
+    for path, key in marker.keys.items():
+        if not (isinstance(key, str) and is_run_path(path) and key.startswith(prefix) and key.endswith(f"/{path}")
+                and is_plain_name(key[len(prefix):-len(path) - 1])):
+            return f"store key {key!r} is not under {prefix}<attempt>/{path}"
+    return None
 
 
 def drop_marker(root: Path, stage: str, unit: str) -> None:
@@ -233,7 +303,7 @@ def stages_writing(root: Path, dataset: str) -> list[str]:
     if store is not None:
         return store_markers.stages_writing(store, dataset)
     folder = Path(root) / STATE / DATASET_INDEX / dataset
-    return sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+    return sorted(p.name for p in folder.iterdir() if is_plain_name(p.name)) if folder.is_dir() else []
 
 
 def marked_stages(root: Path) -> list[str]:
@@ -242,7 +312,9 @@ def marked_stages(root: Path) -> list[str]:
     if store is not None:
         return store_markers.marked_stages(store)
     folder = Path(root) / STATE
-    return sorted(p.name for p in folder.iterdir() if p.is_dir() and p.name != DATASET_INDEX) if folder.is_dir() else []
+    if not folder.is_dir():
+        return []
+    return sorted(p.name for p in folder.iterdir() if p.is_dir() and p.name != DATASET_INDEX and is_plain_name(p.name))
 
 
 # ------------------------------------------------------------------------------------- checking
@@ -308,20 +380,27 @@ def _damage_path(root: Path, stage: str, unit: str) -> Path:
     return Path(root) / STATE / stage / f"{unit}{DAMAGE_SUFFIX}"
 
 
+# Damage notes this process found but could not write (a read-only run folder), by note path: so that the
+# rest of the command (`status --verify` shows the table after verifying) still sees what it found.
+_UNWRITTEN_NOTES: dict[str, dict] = {}
+
+
 def record_damage(root: Path, marker: Marker, problems: list[Damage]) -> None:
     """Remember damage found by reading (a checksum, an unreadable part) so that `rerun` repairs the unit.
 
     The note names the marker it judged (`finished_at`): a unit committed again since is not affected.
-    A read-only run folder keeps no note; the damage is then found again by the next verify.
+    A read-only run folder keeps no note (this process remembers it); the next verify finds it again.
     """
     store = store_of(root)
     if store is not None:
         store_markers.update_damage(store, marker.stage, [(marker, problems)])
         return
     note = {"finished_at": marker.finished_at, "problems": [asdict(p) for p in problems]}
+    path = _damage_path(root, marker.stage, marker.unit)
     try:
-        atomic_write_text(_damage_path(root, marker.stage, marker.unit), json.dumps(note, indent=1))
+        atomic_write_text(path, json.dumps(note, indent=1))
     except OSError as error:
+        _UNWRITTEN_NOTES[str(path)] = note
         log.warning("cannot record damage of %s/%s: %s", marker.stage, marker.unit, error)
 
 
@@ -330,8 +409,11 @@ def recorded_damage(root: Path, marker: Marker) -> list[Damage]:
     store = store_of(root)
     if store is not None:
         return store_markers.recorded_damage(marker, store_markers.damage_notes(store, marker.stage))
+    path = _damage_path(root, marker.stage, marker.unit)
+    note = _UNWRITTEN_NOTES.get(str(path))
     try:
-        note = json.loads(_damage_path(root, marker.stage, marker.unit).read_text(encoding="utf-8"))
+        if note is None:
+            note = json.loads(path.read_text(encoding="utf-8"))
         if note["finished_at"] != marker.finished_at:
             return []
         return [Damage(**p) for p in note["problems"]]
@@ -347,7 +429,10 @@ def clear_damage(root: Path, stage: str, unit: str) -> None:
     if store is not None:
         store_markers.update_damage(store, stage, cleared=[unit])
         return
-    _damage_path(root, stage, unit).unlink(missing_ok=True)
+    path = _damage_path(root, stage, unit)
+    _UNWRITTEN_NOTES.pop(str(path), None)
+    if path.exists():  # never unlink a note that is not there: on a read-only file system that fails (EROFS)
+        path.unlink(missing_ok=True)
 
 
 def atomic_write_text(path: Path, text: str) -> None:

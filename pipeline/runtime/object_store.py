@@ -21,6 +21,7 @@ import logging
 import os
 import re
 import socket
+import sys
 import threading
 import time
 from pathlib import Path
@@ -36,11 +37,36 @@ ATTEMPTS = "_attempts"
 # The remote URL a run's local folder stands for (the URL only: never a credential).
 REMOTE_FILE = ".remote-url"
 _URL = re.compile(r"^([a-z][a-z0-9+.-]+):/+(.*)$")
-# Variables a Ray worker needs to reach the same store as the driver (forwarded, never written down).
+# Variables a Ray worker needs to reach the same store as the driver: handed to its tasks as an argument
+# (held in memory by Ray, never in a runtime_env, which Ray writes into its logs), never written down.
 STORAGE_ENVIRONMENT = ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_SESSION_TOKEN", "AWS_ENDPOINT_URL",
                        "AWS_ENDPOINT_URL_S3", "AWS_DEFAULT_REGION", "AWS_REGION", "AWS_PROFILE",
                        "AWS_SHARED_CREDENTIALS_FILE", "AWS_CONFIG_FILE", "GOOGLE_APPLICATION_CREDENTIALS",
                        "MVPD_CACHE_DIR")
+
+
+def storage_environment(url: str | None) -> dict[str, str]:
+    """The driver's storage variables (endpoint, credentials) for the workers of a run on `url` ({} locally)."""
+    if url is None:
+        return {}
+    return {name: os.environ[name] for name in STORAGE_ENVIRONMENT if name in os.environ}
+
+
+def use_storage_environment(environment: dict[str, str]) -> None:
+    """In a Ray worker: take the driver's storage variables (a task argument) before the store is opened.
+
+    s3fs keeps one client per set of options, not per environment: when a variable changes, the cached
+    clients are dropped so the next one is made with the driver's endpoint and credentials.
+    """
+    if all(os.environ.get(name) == value for name, value in environment.items()):
+        return
+    os.environ.update(environment)
+    for module in ("s3fs", "gcsfs"):
+        loaded = sys.modules.get(module)
+        if loaded is not None:
+            for filesystem in (getattr(loaded, "S3FileSystem", None), getattr(loaded, "GCSFileSystem", None)):
+                if filesystem is not None:
+                    filesystem.clear_instance_cache()
 
 
 class StoreError(OSError):

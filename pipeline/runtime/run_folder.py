@@ -18,17 +18,18 @@ from __future__ import annotations
 
 import logging
 import os
-import re
 import shutil
 import socket
 import time
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import pyarrow as pa
 import yaml
 
 from pipeline.config import ConfigError, Job, job_from_resolved
+from pipeline.runtime.lock import Lease, check_fence, run_lock
 from pipeline.runtime import markers as marker_files
 from pipeline.runtime.markers import (  # noqa: F401 - Marker and atomic_write_text are imported from here too
     DATASET_INDEX,
@@ -36,6 +37,8 @@ from pipeline.runtime.markers import (  # noqa: F401 - Marker and atomic_write_t
     Marker,
     atomic_write_text,
     code_version,
+    is_plain_name,
+    is_run_path,
     describe_files,
     marker_text,
 )
@@ -57,16 +60,6 @@ JOB_FILE = "job.yaml"
 STAGING = "_staging"
 
 log = logging.getLogger(__name__)
-
-
-# A name the run looks up (a video, a split, an embodiment): no separator and no leading dot, so it can
-# never leave the folder it names (`..`, `/abs`, `e/v` are not plain).
-PLAIN_NAME = re.compile(r"[A-Za-z0-9_\-][A-Za-z0-9_.\-]*")
-
-
-def is_plain_name(name: str) -> bool:
-    """True when `name` may be looked up inside one folder of the run (see PLAIN_NAME)."""
-    return PLAIN_NAME.fullmatch(name) is not None
 
 
 def run_root(run: "RunFolder | str | os.PathLike[str]") -> Path:
@@ -106,6 +99,31 @@ class RunFolder:
         self.store = RunStore(url) if url else None
         self.location = self.store.url if self.store else str(self.root)
         self._indexed: set[str] = set()  # dataset index entries known to be on the store
+        # The driver's run lock while it runs (`hold`), and the owner id its commits are fenced with (also
+        # handed to the units it starts): a commit checks that the lock still names it (lock.check_fence).
+        self.lease: Lease | None = None
+        self.fence = ""
+
+    @contextmanager
+    def locked(self) -> Iterator[Lease]:
+        """Hold the run lock (local, or on the store) while the block runs; its commits are fenced by it."""
+        with run_lock(self) as lock:
+            self.lease, self.fence = lock, lock.owner
+            try:
+                yield lock
+            finally:
+                self.lease, self.fence = None, ""
+
+    def check_lease(self) -> None:
+        """LeaseLostError when this driver's lease is lost (in memory, no I/O: before each unit starts)."""
+        if self.lease is not None:
+            self.lease.check()
+
+    def check_fence(self) -> None:
+        """LeaseLostError unless the run lock still names the driver this process commits for (a read of it)."""
+        self.check_lease()
+        if self.fence:
+            check_fence(self, self.fence)
 
     # ------------------------------------------------------------------------------------ job
     @classmethod
@@ -248,8 +266,10 @@ class RunFolder:
 
         The old marker goes first: a process that dies during the commit leaves a unit that is simply
         not done. The manifest (size and CRC-32C of every file) is taken from the staged files, which
-        were just written and are read back from the page cache.
+        were just written and are read back from the page cache. The fence is checked before anything
+        changes and again before the marker: a driver that lost the run lock commits nothing more.
         """
+        self.check_fence()
         previous = self.marker(stage, unit)
         if previous is not None:
             self.drop_marker(stage, unit)
@@ -263,6 +283,7 @@ class RunFolder:
             self.commit(staging, outputs, previous.outputs if previous else [])
         marker = Marker(stage, unit, config_hash, code_version(), outputs, rows, round(seconds, 3), attempt, host,
                         finished_at, info or {}, files, node=node, keys=keys)
+        self.check_fence()
         self.write_marker(marker)
         if self.store is not None and previous is not None:  # the old attempt's objects, now named by nobody
             self.store.remove(sorted(set(previous.keys.values()) - set(keys.values())))
@@ -305,8 +326,9 @@ class RunFolder:
             return
         try:
             self.store.put_file(self.log_path(stage, unit), f"logs/{stage}/{unit}.log")
-        except OSError as error:
-            log.warning("%s: log of %s/%s not uploaded (%s)", self.location, stage, unit, error)
+        except Exception as error:  # noqa: BLE001 - an outage raises botocore's or aiohttp's errors, no OSError
+            log.warning("%s: log of %s/%s not uploaded (%s: %s)", self.location, stage, unit, type(error).__name__,
+                        " ".join(str(error).split())[:200])
 
     def commit(self, staging: Path, outputs: list[str], previous_outputs: list[str]) -> None:
         """Move the staged `outputs` (files or Zarr stores) into place, replacing earlier versions.
@@ -315,12 +337,22 @@ class RunFolder:
         rerun never leaves stale rows or videos behind.
         """
         for relative in outputs:
-            target = self.root / relative
+            target = self.inside(relative)
             target.parent.mkdir(parents=True, exist_ok=True)
             _replace(staging / relative, target)
         for relative in sorted(set(previous_outputs) - set(outputs)):
-            _remove(self.root / relative)
+            _remove(self.inside(relative))
         shutil.rmtree(staging, ignore_errors=True)
+
+    def inside(self, relative: str) -> Path:
+        """The local path of an output of the run, after checking that it stays inside the run: a plain
+        relative path (`is_run_path`) whose folders are no links leading elsewhere. Markers are checked when
+        read; this is the last guard before anything is moved or deleted (RunFolderError otherwise)."""
+        path = self.root / relative
+        if not is_run_path(relative) or not path.parent.resolve().is_relative_to(self.root.resolve()):
+            raise RunFolderError(f"{self.root}: refusing to write or delete {relative!r}, which is not a plain "
+                                 "relative path inside the run")
+        return path
 
     def log_path(self, stage: str, unit: str) -> Path:
         path = self.root / "logs" / stage / f"{unit}.log"

@@ -23,7 +23,7 @@ from dataclasses import asdict
 
 import google_crc32c
 
-from pipeline.runtime.markers import DATASET_INDEX, STATE, Damage, Marker, parse_marker
+from pipeline.runtime.markers import DATASET_INDEX, STATE, Damage, Marker, is_plain_name, parse_marker
 from pipeline.runtime.object_store import RunStore
 
 log = logging.getLogger(__name__)
@@ -34,7 +34,7 @@ DAMAGE_NOTES = "_damage.notes"
 def unit_marker(store: RunStore, stage: str, unit: str) -> Marker | None:
     """One unit's marker (one GET); None when it has none."""
     text = store.read_text(f"{STATE}/{stage}/{unit}.json")
-    return parse_marker(text) if text is not None else None
+    return parse_marker(text, f"{unit}.json") if text is not None else None
 
 
 def stages_writing(store: RunStore, dataset: str) -> list[str]:
@@ -59,7 +59,8 @@ def _names(store: RunStore, folder: str, kind: str) -> list[str]:
         entries = store.fs.ls(key, detail=True)
     except FileNotFoundError:
         return []
-    return sorted(e["name"].rstrip("/").rsplit("/", 1)[-1] for e in entries if e.get("type") == kind)
+    names = (e["name"].rstrip("/").rsplit("/", 1)[-1] for e in entries if e.get("type") == kind)
+    return sorted(name for name in names if is_plain_name(name))  # a name that is no plain name is never followed
 
 
 # ------------------------------------------------------------------------------------- checking

@@ -8,6 +8,7 @@ or Ray is asked for: reading is the limit, so on one machine threads are as fast
 
 from __future__ import annotations
 
+import logging
 import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -15,8 +16,11 @@ from typing import Callable
 
 from pipeline.runtime.executors import ExecutorName, ray_is_running
 from pipeline.runtime.markers import Damage, Marker, check_files, clear_damage, marked_stages, record_damage, stage_markers
+from pipeline.runtime.object_store import storage_environment, use_storage_environment
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.store_markers import update_damage
+
+log = logging.getLogger(__name__)
 
 BATCH_BYTES = 512 * 2**20
 # auto: Ray pays for itself only when there is much to read (several nodes reading a shared store).
@@ -51,8 +55,17 @@ def verify_run(run: RunFolder, executor: ExecutorName = "auto", address: str | N
         if problems:
             record_damage(run.root, marker, problems)
         else:
-            clear_damage(run.root, marker.stage, marker.unit)
+            _forget_damage(run, marker)
     return damaged
+
+
+def _forget_damage(run: RunFolder, marker: Marker) -> None:
+    """Drop an earlier damage note of a unit that passed; a read-only run folder keeps it (with a warning)
+    and the verify still answers: `status` then shows the old note until a writable verify clears it."""
+    try:
+        clear_damage(run.root, marker.stage, marker.unit)
+    except OSError as error:
+        log.warning("cannot clear the damage note of %s/%s: %s", marker.stage, marker.unit, error)
 
 
 def _check(marker: Marker, root: str) -> list[Damage]:
@@ -69,7 +82,8 @@ def _verify_inline(run: RunFolder, markers: list[Marker], progress: ProgressByte
     return results
 
 
-def _check_batch(markers: list[Marker], root: str) -> list[list[Damage]]:
+def _check_batch(environment: dict[str, str], markers: list[Marker], root: str) -> list[list[Damage]]:
+    use_storage_environment(environment)  # a remote run's credentials: a task argument, never a runtime_env
     return [_check(marker, root) for marker in markers]
 
 
@@ -90,7 +104,8 @@ def _verify_on_ray(run: RunFolder, markers: list[Marker], address: str | None,
         size += sum(f.size for f in marker.files)
     task = ray.remote(_check_batch).options(num_cpus=1, name="mvpd.verify")
     # A task is handed the run's location: a node of a cluster reads a remote run from its store.
-    refs = {task.remote([markers[i] for i in batch], run.location): batch for batch in batches if batch}
+    environment = storage_environment(run.store.url if run.store else None)
+    refs = {task.remote(environment, [markers[i] for i in batch], run.location): batch for batch in batches if batch}
     results: list[list[Damage]] = [[] for _ in markers]
     pending = list(refs)
     while pending:

@@ -25,7 +25,7 @@ STAGE = "render"
 
 def a_marker(unit: str, files: int = 3, seconds: float = 1.5) -> Marker:
     manifest = [OutputFile(f"videos/{unit}/{index}.bin", 4 + index, f"{index:08x}") for index in range(files)]
-    return Marker(STAGE, unit, "hash", "0.1+abc", ["videos"], {"videos": 1}, seconds, 1, "host", 1000.0 + seconds,
+    return Marker(STAGE, unit, "hash", "0.1+abc", [f"videos/{unit}"], {"videos": 1}, seconds, 1, "host", 1000.0 + seconds,
                   {"frames": 3}, manifest)
 
 

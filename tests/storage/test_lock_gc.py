@@ -140,7 +140,7 @@ def test_a_stale_lock_is_taken_over_and_a_live_one_is_not(s3, tiny_url):
     landed = RemoteRunLock(store)
     store.put_text(LOCK_KEY, landed._record().decode())
     with landed:
-        assert lock_object(s3, tiny_url)["owner"] == landed._owner
+        assert lock_object(s3, tiny_url)["owner"] == landed.owner
     assert lock_object(s3, tiny_url) is None
 
 

@@ -47,7 +47,6 @@ from pipeline.io.tables import spec, to_table
 from pipeline.io.zarr_video import VideoWriter
 from pipeline.runtime.executor import ProgressCallback, StagePlan, StageReport, run_stage
 from pipeline.runtime.executors import ExecutorName
-from pipeline.runtime.lock import run_lock
 from pipeline.runtime.run_folder import RunFolder, RunFolderError
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 from pipeline.runtime.status import UnitOutcome
@@ -134,7 +133,7 @@ def import_release(root: Path, split: str, run_root: Path, embodiment: str = DEF
         if on_start is not None:
             on_start(plan)
 
-    with run_lock(run):
+    with run.locked():
         report = run_stage(stage, run, force=force, address=address, on_start=start, on_unit=on_unit, executor=executor)
     return _summary(run, {v.video_name for v in videos}, plans[0], report, time.monotonic() - started)
 
