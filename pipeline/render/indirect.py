@@ -122,6 +122,23 @@ class IndirectGather:
         return positions.astype(np.float32), normal, (flux * reflectance).astype(np.float32), keep
 
     # ------------------------------------------------------------------------------ gather
+    def irradiance_at(self, points: np.ndarray, normals: np.ndarray, camera_to_world: np.ndarray) -> np.ndarray:
+        """(n, 3) indirect irradiance (W/m^2) at surface points (n, 3) with unit normals (n, 3) facing the
+        side to light, from every virtual light of the spot at `camera_to_world` (no interleaving, no filter):
+        the estimator itself, for checks against analytic cases."""
+        lights = self.virtual_lights(camera_to_world)
+        starts = np.array([0, len(lights.positions)], np.int64)
+        depth = np.ones((1, len(points)), np.float32)
+        shadow = _shadow_rays(np.asarray(points, np.float32)[None], np.asarray(normals, np.float32)[None], depth, 0, 1,
+                              lights.positions, lights.normals, lights.flux, starts,
+                              np.float32(self.settings.clamp_distance ** 2), np.float32(SURFACE_OFFSET))
+        cells, contributions, ray_origins, ray_directions = shadow
+        blocked = np.empty(len(cells), np.bool_)
+        self.mesh.occluded(ray_origins, ray_directions, np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
+        out = np.zeros((1, len(points), 3), np.float32)
+        _accumulate(cells, contributions, blocked, out)
+        return out[0]
+
     def irradiance(self, hits: RayHits, camera_to_world: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """(H, W, 3) float32 indirect irradiance (W/m^2) at every pixel's surface; 0 where nothing was hit."""
         lights = self.virtual_lights(camera_to_world)
