@@ -57,6 +57,7 @@ BLENDER_SPOT_SCALE = 2.0  # 4 pi / 2 pi: measured 0.5000 ratio of Cycles to our 
 POWER = 20.0
 REFERENCE = {"name": "reference", "samples": 64, "bounces": 16, "denoise": True, "seed": 1}
 AUTHORS = {"name": "cycles16", "samples": 16, "bounces": 16, "seed": 0}
+DEBIAN_LLVM = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
 TARGET_PSNR = 35.0
 TARGET_VS_MITSUBA = 1.5
 TARGET_VS_CYCLES = 25.0
@@ -90,9 +91,12 @@ def export(scene: Scene, poses: np.ndarray, folder: Path, renders: list[dict], m
 
 def run_peer(python: str, script: str, folder: Path, log: Path) -> bool:
     """Run a peer script; False (with the log's tail printed) when it fails."""
+    env = dict(os.environ)
+    if "DRJIT_LIBLLVM_PATH" not in env and Path(DEBIAN_LLVM).exists():
+        env["DRJIT_LIBLLVM_PATH"] = DEBIAN_LLVM  # Mitsuba's LLVM backend on Debian 12 (apt libllvm19)
     with open(log, "w") as out:
         done = subprocess.run([python, str(HERE / script), str(folder)], stdout=out, stderr=subprocess.STDOUT,
-                              cwd=tempfile.gettempdir())
+                              cwd=tempfile.gettempdir(), env=env)
     if done.returncode != 0:
         print(f"{script} failed (exit {done.returncode}); last lines of {log}:")
         print("".join(log.read_text().splitlines(keepends=True)[-15:]))

@@ -27,6 +27,7 @@ time (no flicker), and the same job gives the same bytes. Virtual lights clamp t
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numba
 import numpy as np
@@ -40,9 +41,8 @@ from pipeline.render.raycaster import RayHits, row_bands, thread_pool
 # Offset of shadow and bounce rays off their surface, relative to the distance from the camera (float32
 # hits are accurate to ~1e-7 of that distance).
 SURFACE_OFFSET = 1e-4
-# Geometric weights of the filter: normals whose cosine is below this do not mix; a neighbour whose plane
-# lies further than this fraction of the depth from the pixel does not mix.
-NORMAL_SHARPNESS = 8.0
+# Geometric weights of the filter: cos^8 of the angle between normals (fixed in `_similarity`) times
+# 1 - (plane distance / tolerance)^2, the tolerance being this fraction of the depth.
 PLANE_TOLERANCE = 0.05
 _SEED_STREAM = 0x1D1EC7  # separates the pattern's draws from every other use of the job seed
 
@@ -166,17 +166,25 @@ class IndirectGather:
             self.mesh.occluded(ray_origins, ray_directions, np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
             _accumulate(cells, contributions, blocked, gathered[band])
 
-        bands = row_bands(rows, self.threads)
-        if len(bands) == 1:
-            gather(bands[0])
-        else:
-            list(thread_pool(self.threads).map(gather, bands))
+        self._run_bands(gather, rows)
         combined = np.zeros_like(gathered)
         _interleave_filter(gathered, points, point_normals, point_depth, interleave, combined)
-        out = np.zeros((height, width, 3), np.float32) if out is None else out
-        _upsample(combined, points, point_normals, point_depth, hits.depth, hits.direction, hits.normal, origin,
-                  stride, out)
+        out = np.empty((height, width, 3), np.float32) if out is None else out
+
+        def upsample(band: slice) -> None:
+            _upsample(combined, points, point_normals, point_depth, hits.depth, hits.direction, hits.normal, origin,
+                      stride, band.start, out[band])
+
+        self._run_bands(upsample, height)
         return out
+
+    def _run_bands(self, work: Callable[[slice], None], rows: int) -> None:
+        """`work` on bands of `rows` rows, on this gather's threads (inline with one thread)."""
+        bands = row_bands(rows, self.threads)
+        if len(bands) == 1:
+            work(bands[0])
+        else:
+            list(thread_pool(self.threads).map(work, bands))
 
 
 def spot_pattern(illumination: Illumination, count: int, interleave: int, rng: np.random.Generator
@@ -216,7 +224,7 @@ def cosine_directions(normals: np.ndarray, numbers: np.ndarray) -> np.ndarray:
     return local[:, :1] * tangent + local[:, 1:2] * bitangent + local[:, 2:] * normals
 
 
-@numba.njit(nogil=True)
+@numba.njit(nogil=True, cache=True)
 def _gather_points(depth, normal, direction, origin, stride, points, point_normals, point_depth):  # pragma: no cover
     """The surface under the centre pixel of each stride x stride cell: position, normal facing the camera, depth."""
     height, width = depth.shape
@@ -237,13 +245,16 @@ def _gather_points(depth, normal, direction, origin, stride, points, point_norma
             point_depth[i, k] = z
 
 
-@numba.njit(nogil=True)
+@numba.njit(nogil=True, cache=True)
 def _shadow_rays(points, point_normals, point_depth, row_offset, interleave, positions, normals, flux, starts,
                  clamp2, offset):  # pragma: no cover (compiled)
     """Every (gather point, light of its subset) pair that faces each other: the cell, the unshadowed
     irradiance (RGB) and the shadow ray (origin off the surface, direction to the light: t in [0, 1))."""
     rows, columns = point_depth.shape
-    most = rows * columns * (starts[-1] - starts[0])
+    largest = 0
+    for group in range(len(starts) - 1):
+        largest = max(largest, starts[group + 1] - starts[group])
+    most = rows * columns * largest
     cells = np.empty(most, np.int64)
     contributions = np.empty((most, 3), np.float32)
     origins = np.empty((most, 3), np.float32)
@@ -280,7 +291,7 @@ def _shadow_rays(points, point_normals, point_depth, row_offset, interleave, pos
     return cells[:n], contributions[:n], origins[:n], directions[:n]
 
 
-@numba.njit(nogil=True)
+@numba.njit(nogil=True, cache=True)
 def _accumulate(cells, contributions, blocked, gathered):  # pragma: no cover (compiled)
     """Sum the unshadowed contributions per gather point, in ray order (deterministic)."""
     columns = gathered.shape[1]
@@ -292,7 +303,7 @@ def _accumulate(cells, contributions, blocked, gathered):  # pragma: no cover (c
             gathered[i, k, c] += contributions[n, c]
 
 
-@numba.njit(nogil=True, inline="always")
+@numba.njit(nogil=True, cache=True, inline="always")
 def _similarity(px, py, pz, nx, ny, nz, depth, points, point_normals, point_depth, i, k):  # pragma: no cover
     """Geometric weight in [0, 1] of gather point (i, k) for a surface at p with normal n and depth."""
     if not np.isfinite(point_depth[i, k]):
@@ -301,13 +312,18 @@ def _similarity(px, py, pz, nx, ny, nz, depth, points, point_normals, point_dept
     if cosine <= 0:
         return np.float32(0.0)
     plane = abs((px - points[i, k, 0]) * point_normals[i, k, 0] + (py - points[i, k, 1]) * point_normals[i, k, 1]
-                + (pz - points[i, k, 2]) * point_normals[i, k, 2]) / (np.float32(PLANE_TOLERANCE) * depth)
-    if plane >= 1:
+                + (pz - points[i, k, 2]) * point_normals[i, k, 2])
+    tolerance = np.float32(PLANE_TOLERANCE) * depth
+    if plane >= tolerance:
         return np.float32(0.0)
-    return cosine ** np.float32(NORMAL_SHARPNESS) * (np.float32(1.0) - plane * plane)
+    plane /= tolerance
+    cosine *= cosine  # cos^8 by squaring (a float power costs more than the rest of the weight)
+    cosine *= cosine
+    cosine *= cosine
+    return cosine * (np.float32(1.0) - plane * plane)
 
 
-@numba.njit(nogil=True)
+@numba.njit(nogil=True, cache=True)
 def _interleave_filter(gathered, points, point_normals, point_depth, interleave, out):  # pragma: no cover
     """Each gather point: the geometry-weighted mean of the interleave x interleave block around it."""
     rows, columns = point_depth.shape
@@ -335,28 +351,30 @@ def _interleave_filter(gathered, points, point_normals, point_depth, interleave,
                     out[i, k, c] = sums[c] / total
 
 
-@numba.njit(nogil=True)
-def _upsample(combined, points, point_normals, point_depth, depth, direction, normal, origin, stride, out):  # pragma: no cover
-    """Every pixel: bilinear mix of its four nearest gather points, each weighted by geometric similarity;
-    where none is alike (a surface smaller than a cell), the most similar point of the 3 x 3 around it, or
-    else the nearest valid one."""
-    height, width = depth.shape
+@numba.njit(nogil=True, cache=True)
+def _upsample(combined, points, point_normals, point_depth, depth, direction, normal, origin, stride, row_start,
+              out):  # pragma: no cover (compiled)
+    """Pixels of rows row_start.. (out holds those rows): the bilinear mix of the four nearest gather points,
+    each weighted by geometric similarity; where none is alike (a surface smaller than a cell), the most
+    similar of the 4 x 4 points around, or black when none is on a surface facing the same way."""
+    height, width = out.shape[0], out.shape[1]
     rows, columns = point_depth.shape
     half = np.float32(stride // 2)
-    for row in range(height):
+    one = np.float32(1.0)
+    for local_row in range(height):
+        row = row_start + local_row
         gi = (np.float32(row) - half) / np.float32(stride)
         i0 = min(max(int(np.floor(gi)), 0), rows - 1)
         i1 = min(i0 + 1, rows - 1)
-        fi = min(max(gi - np.float32(i0), np.float32(0.0)), np.float32(1.0))
+        fi = min(max(gi - np.float32(i0), np.float32(0.0)), one)
         for column in range(width):
-            for c in range(3):
-                out[row, column, c] = 0.0
+            out[local_row, column, 0] = out[local_row, column, 1] = out[local_row, column, 2] = 0.0
             z = depth[row, column]
             if not np.isfinite(z):
                 continue
             facing = (normal[row, column, 0] * direction[row, column, 0] + normal[row, column, 1] * direction[row, column, 1]
                       + normal[row, column, 2] * direction[row, column, 2])
-            sign = np.float32(-1.0) if facing > 0 else np.float32(1.0)
+            sign = np.float32(-1.0) if facing > 0 else one
             nx, ny, nz = sign * normal[row, column, 0], sign * normal[row, column, 1], sign * normal[row, column, 2]
             px = origin[0] + z * direction[row, column, 0]
             py = origin[1] + z * direction[row, column, 1]
@@ -364,28 +382,23 @@ def _upsample(combined, points, point_normals, point_depth, depth, direction, no
             gk = (np.float32(column) - half) / np.float32(stride)
             k0 = min(max(int(np.floor(gk)), 0), columns - 1)
             k1 = min(k0 + 1, columns - 1)
-            fk = min(max(gk - np.float32(k0), np.float32(0.0)), np.float32(1.0))
-            total = np.float32(0.0)
-            sums = np.zeros(3, np.float32)
-            for a, wa in ((i0, np.float32(1.0) - fi), (i1, fi)):
-                for b, wb in ((k0, np.float32(1.0) - fk), (k1, fk)):
-                    w = wa * wb * _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, a, b)
-                    total += w
-                    for c in range(3):
-                        sums[c] += w * combined[a, b, c]
-            if total <= np.float32(1e-6):
-                best, best_a, best_b = np.float32(-1.0), -1, -1
-                for a in range(max(i0 - 1, 0), min(i0 + 3, rows)):
-                    for b in range(max(k0 - 1, 0), min(k0 + 3, columns)):
-                        w = _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, a, b)
-                        if not np.isfinite(point_depth[a, b]):
-                            continue
-                        if w > best:
-                            best, best_a, best_b = w, a, b
-                if best_a < 0:
-                    continue
+            fk = min(max(gk - np.float32(k0), np.float32(0.0)), one)
+            w00 = (one - fi) * (one - fk) * _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i0, k0)
+            w01 = (one - fi) * fk * _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i0, k1)
+            w10 = fi * (one - fk) * _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i1, k0)
+            w11 = fi * fk * _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i1, k1)
+            total = w00 + w01 + w10 + w11
+            if total > np.float32(1e-6):
                 for c in range(3):
-                    out[row, column, c] = combined[best_a, best_b, c]
+                    out[local_row, column, c] = (w00 * combined[i0, k0, c] + w01 * combined[i0, k1, c]
+                                                 + w10 * combined[i1, k0, c] + w11 * combined[i1, k1, c]) / total
                 continue
-            for c in range(3):
-                out[row, column, c] = sums[c] / total
+            best, best_a, best_b = np.float32(0.0), -1, -1
+            for a in range(max(i0 - 1, 0), min(i0 + 3, rows)):
+                for b in range(max(k0 - 1, 0), min(k0 + 3, columns)):
+                    w = _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, a, b)
+                    if w > best:
+                        best, best_a, best_b = w, a, b
+            if best_a >= 0:
+                for c in range(3):
+                    out[local_row, column, c] = combined[best_a, best_b, c]
