@@ -150,10 +150,14 @@ class IndirectLight(Strict):
     Virtual point lights are traced from the spot (`virtual_lights` per bounce, one fixed pattern per job
     seed) and gathered with shadow rays every `gather_stride` pixels, each gather pixel seeing one of
     `interleave`^2 subsets of the lights; a geometry-aware filter recombines the subsets and fills the
-    pixels between. 0 bounces: direct light only (surfaces the spot cannot see are black).
+    pixels between. 0 bounces: direct light only (surfaces the spot cannot see are black). Bounces past
+    `traced_bounces` cost nothing: each later bounce is taken as the last traced one times the ratio r of
+    its flux to the bounce before, so the last traced lights shine 1 + r + ... + r^(bounces - traced) times.
     """
 
-    bounces: int = Field(0, ge=0, le=16, description="diffuse bounces of light after the first hit; 0 = direct only")
+    bounces: int = Field(0, ge=0, le=64, description="bounces of light after the first hit; 0 = direct only")
+    traced_bounces: int = Field(2, ge=1, le=64, description="bounces traced with virtual lights; the bounces past "
+                                "them repeat the last traced one, scaled by the measured ratio of successive bounces")
     virtual_lights: int = Field(256, ge=16, le=65536, description="virtual point lights per bounce")
     gather_stride: int = Field(8, ge=1, le=64, description="pixels between gather points (each axis)")
     interleave: int = Field(4, ge=1, le=8, description="gather points in a block of interleave x interleave see "

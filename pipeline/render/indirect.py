@@ -44,6 +44,8 @@ SURFACE_OFFSET = 1e-4
 # Geometric weights of the filter: cos^8 of the angle between normals (fixed in `_similarity`) times
 # 1 - (plane distance / tolerance)^2, the tolerance being this fraction of the depth.
 PLANE_TOLERANCE = 0.05
+# Ratio of successive bounces used for the untraced ones at most (a white closed room would give 1).
+MAX_BOUNCE_RATIO = 0.95
 _SEED_STREAM = 0x1D1EC7  # separates the pattern's draws from every other use of the job seed
 
 
@@ -76,7 +78,8 @@ class IndirectGather:
         self.directions, self.ray_flux, self.ray_groups = spot_pattern(illumination, self.settings.virtual_lights,
                                                                        self.settings.interleave, rng)
         # One pair of uniform numbers per light and further bounce (cosine-distributed directions).
-        self._bounce_numbers = rng.random((max(0, self.settings.bounces - 1), len(self.directions), 2))
+        self.traced = min(self.settings.bounces, self.settings.traced_bounces)
+        self._bounce_numbers = rng.random((max(0, self.traced - 1), len(self.directions), 2))
 
     # ------------------------------------------------------------------------------ lights
     def virtual_lights(self, camera_to_world: np.ndarray) -> VirtualLights:
@@ -88,17 +91,25 @@ class IndirectGather:
         groups, pattern_index = self.ray_groups, np.arange(len(self.directions))
         camera = np.asarray(camera_to_world, np.float64)[:3, 3]
         found: list[tuple[np.ndarray, ...]] = []
-        for bounce in range(self.settings.bounces):
+        emitted = [float(self.ray_flux.sum())]  # flux leaving the spot, then each bounce's lights (summed over RGB / 3)
+        for bounce in range(self.traced):
             positions, normals, reflected, keep = self._land(origins, directions, flux)
             positions, normals, flux = positions[keep], normals[keep], reflected[keep]
             groups, pattern_index = groups[keep], pattern_index[keep]
             found.append((positions, normals, flux, groups))
-            if bounce + 1 == self.settings.bounces:
+            emitted.append(float(flux.sum()) / 3.0)
+            if bounce + 1 == self.traced:
                 break
             # Each light's path keeps its own numbers of the pattern, whichever other paths were lost.
             directions = cosine_directions(normals, self._bounce_numbers[bounce][pattern_index]).astype(np.float32)
             lift = SURFACE_OFFSET * (1.0 + np.linalg.norm(positions - camera, axis=1, keepdims=True))
             origins = (positions + normals * lift).astype(np.float32)
+        untraced = self.settings.bounces - self.traced
+        if untraced > 0 and emitted[-2] > 0:
+            # Later bounces look like the last traced one, each r times as strong (r < 1: light is absorbed).
+            ratio = min(emitted[-1] / emitted[-2], MAX_BOUNCE_RATIO)
+            found[-1] = (*found[-1][:2], found[-1][2] * np.float32(sum(ratio**k for k in range(untraced + 1))),
+                         found[-1][3])
         return VirtualLights(*(np.ascontiguousarray(np.concatenate([part[k] for part in found])) for k in range(4)))
 
     def _land(self, origins: np.ndarray, directions: np.ndarray, flux: np.ndarray
