@@ -34,7 +34,8 @@ import numpy as np
 
 from pipeline.config import Illumination
 from pipeline.render.embree import EmbreeMesh
-from pipeline.render.lighting import SurfaceColors, cone_falloff, radiant_intensity, srgb_to_linear
+from pipeline.render.lighting import (INDIRECT_BLOCK, SurfaceColors, cone_falloff, radiant_intensity,
+                                      srgb_to_linear)
 from pipeline.render.material import TABLE_SIZE, reflection_tables
 from pipeline.render.raycaster import RayHits, row_bands, thread_pool
 
@@ -151,7 +152,8 @@ class IndirectGather:
         return out[0]
 
     def irradiance(self, hits: RayHits, camera_to_world: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """(H, W, 3) float32 indirect irradiance (W/m^2) at every pixel's surface; 0 where nothing was hit."""
+        """(ceil(H / INDIRECT_BLOCK), ceil(W / INDIRECT_BLOCK), 3) float32 indirect irradiance (W/m^2): one value per INDIRECT_BLOCK x INDIRECT_BLOCK
+        pixels, at the surface of the block's first pixel; 0 where that pixel hit nothing."""
         lights = self.virtual_lights(camera_to_world)
         order = np.argsort(lights.groups, kind="stable")
         group_count = self.settings.interleave ** 2
@@ -180,13 +182,13 @@ class IndirectGather:
         self._run_bands(gather, rows)
         combined = np.zeros_like(gathered)
         _interleave_filter(gathered, points, point_normals, point_depth, interleave, combined)
-        out = np.empty((height, width, 3), np.float32) if out is None else out
+        out = np.empty((-(-height // INDIRECT_BLOCK), -(-width // INDIRECT_BLOCK), 3), np.float32) if out is None else out
 
         def upsample(band: slice) -> None:
             _upsample(combined, points, point_normals, point_depth, hits.depth, hits.direction, hits.normal, origin,
                       stride, band.start, out[band])
 
-        self._run_bands(upsample, height)
+        self._run_bands(upsample, len(out))
         return out
 
     def _run_bands(self, work: Callable[[slice], None], rows: int) -> None:
@@ -363,23 +365,25 @@ def _interleave_filter(gathered, points, point_normals, point_depth, interleave,
 
 
 @numba.njit(nogil=True, cache=True)
-def _upsample(combined, points, point_normals, point_depth, depth, direction, normal, origin, stride, row_start,
+def _upsample(combined, points, point_normals, point_depth, depth, direction, normal, origin, stride, block_start,
               out):  # pragma: no cover (compiled)
-    """Pixels of rows row_start.. (out holds those rows): the bilinear mix of the four nearest gather points,
-    each weighted by geometric similarity; where none is alike (a surface smaller than a cell), the most
-    similar of the 4 x 4 points around, or black when none is on a surface facing the same way."""
+    """Blocks of rows block_start.. (out holds those rows; block (R, C) is the surface of pixel (INDIRECT_BLOCK R,
+    INDIRECT_BLOCK C)): the bilinear mix of the four nearest gather points, each weighted by geometric similarity;
+    where none is alike (a surface smaller than a cell), the most similar of the 4 x 4 points around, or
+    black when none is on a surface facing the same way."""
     height, width = out.shape[0], out.shape[1]
     rows, columns = point_depth.shape
     half = np.float32(stride // 2)
     one = np.float32(1.0)
     for local_row in range(height):
-        row = row_start + local_row
+        row = (block_start + local_row) * INDIRECT_BLOCK
         gi = (np.float32(row) - half) / np.float32(stride)
         i0 = min(max(int(np.floor(gi)), 0), rows - 1)
         i1 = min(i0 + 1, rows - 1)
         fi = min(max(gi - np.float32(i0), np.float32(0.0)), one)
-        for column in range(width):
-            out[local_row, column, 0] = out[local_row, column, 1] = out[local_row, column, 2] = 0.0
+        for block_column in range(width):
+            column = block_column * INDIRECT_BLOCK
+            out[local_row, block_column, 0] = out[local_row, block_column, 1] = out[local_row, block_column, 2] = 0.0
             z = depth[row, column]
             if not np.isfinite(z):
                 continue
@@ -401,7 +405,7 @@ def _upsample(combined, points, point_normals, point_depth, depth, direction, no
             total = w00 + w01 + w10 + w11
             if total > np.float32(1e-6):
                 for c in range(3):
-                    out[local_row, column, c] = (w00 * combined[i0, k0, c] + w01 * combined[i0, k1, c]
+                    out[local_row, block_column, c] = (w00 * combined[i0, k0, c] + w01 * combined[i0, k1, c]
                                                  + w10 * combined[i1, k0, c] + w11 * combined[i1, k1, c]) / total
                 continue
             best, best_a, best_b = np.float32(0.0), -1, -1
@@ -412,4 +416,4 @@ def _upsample(combined, points, point_normals, point_depth, depth, direction, no
                         best, best_a, best_b = w, a, b
             if best_a >= 0:
                 for c in range(3):
-                    out[local_row, column, c] = combined[best_a, best_b, c]
+                    out[local_row, block_column, c] = combined[best_a, best_b, c]

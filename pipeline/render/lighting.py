@@ -30,6 +30,9 @@ from pipeline.scenes.scene import Scene
 # Exposure derived when the job gives none: a white Lambertian surface facing the brightest spot
 # light of the job, on its axis at this distance, is exactly full scale.
 REFERENCE_DISTANCE_M = 2.0
+# Pixels per side of the blocks that share one value of indirect light (indirect.py): it varies slowly,
+# and filling 2 x 2 blocks costs a quarter of filling every pixel (the filter's weights dominate the gather).
+INDIRECT_BLOCK = 2
 # Albedo of faces without colour information (neither vertex colours nor a texture).
 DEFAULT_GREY = 160
 
@@ -167,8 +170,10 @@ def interleave(planes: np.ndarray) -> np.ndarray:
 class Shader:
     """Turns albedo and hits into the 8-bit RGB frame for one illumination and a job's exposure."""
 
-    def __init__(self, illumination: Illumination, exposure: float, ray_lengths: np.ndarray):
-        """`ray_lengths`: (H, W) norms of the camera-frame ray directions (x, y, 1), fixed per camera."""
+    def __init__(self, illumination: Illumination, exposure: float, ray_lengths: np.ndarray, first_row: int = 0):
+        """`ray_lengths`: (H, W) norms of the camera-frame ray directions (x, y, 1), fixed per camera;
+        `first_row`: the frame row of their first row (a shader of a band of rows)."""
+        self.first_row = first_row
         self.illumination = illumination
         self.exposure = exposure
         self.ray_lengths = ray_lengths.astype(np.float32)
@@ -190,14 +195,16 @@ class Shader:
 
     def shade(self, albedo: np.ndarray, hits: RayHits, indirect: np.ndarray | None = None) -> np.ndarray:
         """(H, W, 3) uint8 frame from (3, H, W) albedo planes. Ambient is the albedo; spot applies the
-        model of schemas/render.md, plus `indirect` irradiance (H, W, 3) W/m^2 when given (indirect.py)."""
+        model of schemas/render.md, plus `indirect` irradiance W/m^2 of the whole frame when given, one
+        value per indirect.INDIRECT_BLOCK x INDIRECT_BLOCK pixels (IndirectGather.irradiance)."""
         if self.illumination.kind == "ambient":
             return interleave(albedo)
         return _shade(hits, planes=albedo, scale_steps=self._spot_scale_steps, decode=self._decode, encode=self._encode,
-                      material=self._lit_material(), indirect=self._scaled(indirect))
+                      material=self._lit_material(), indirect=indirect, indirect_scale=self.indirect_scale,
+                      first_row=self.first_row)
 
     def shade_surfaces(self, colors: SurfaceColors, hits: RayHits, out: np.ndarray | None = None,
-                       indirect: np.ndarray | None = None) -> np.ndarray:
+                       indirect: np.ndarray | None = None, indirect_scale: float = 1.0, first_row: int = 0) -> np.ndarray:
         """The same frame as `shade(colors.planes(hits), hits, indirect)` (into `out` when given); for
         vertex-coloured scenes in one pass over the pixels (albedo, light and encoding per pixel: 2.4x faster
         than whole-array passes)."""
@@ -209,14 +216,13 @@ class Shader:
         spot = self.illumination.kind == "spot"
         return _shade(hits, records=colors.records, interpolate=not colors.flat, out=out,
                       scale_steps=self._spot_scale_steps if spot else None, decode=self._decode, encode=self._encode,
-                      material=self._lit_material() if spot else None, indirect=self._scaled(indirect) if spot else None)
+                      material=self._lit_material() if spot else None, indirect=indirect if spot else None,
+                      indirect_scale=self.indirect_scale, first_row=self.first_row)
 
     def _lit_material(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """The principled tables, or None for a diffuse surface (its frames keep today's exact arithmetic)."""
         return self._material if self.illumination.material == "principled" else None
 
-    def _scaled(self, indirect: np.ndarray | None) -> np.ndarray | None:
-        return None if indirect is None else indirect * self.indirect_scale
 
 
 # Placeholders of the right types for the inputs a call of the shading loop does not use, so that it is
@@ -230,24 +236,26 @@ def _shade(hits: RayHits, records: np.ndarray | None = None, planes: np.ndarray 
            interpolate: bool = False, scale_steps: np.ndarray | None = None, decode: np.ndarray = _NO_DECODE,
            encode: np.ndarray = _NO_ENCODE, out: np.ndarray | None = None,
            material: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-           indirect: np.ndarray | None = None) -> np.ndarray:
+           indirect: np.ndarray | None = None, indirect_scale: float = 1.0, first_row: int = 0) -> np.ndarray:
     """(H, W, 3) uint8 frame (into `out` when given): albedo from per-face `records` or from `planes`, lit
     by the spot model when `scale_steps` is given (with `decode` and `encode`), else the albedo itself;
-    `material` = the principled (diffuse, specular, albedo) tables; `indirect` irradiance in encoder steps."""
+    `material` = the principled (diffuse, specular, albedo) tables; `indirect` irradiance of the whole frame
+    per INDIRECT_BLOCK x INDIRECT_BLOCK pixels, times `indirect_scale` in encoder steps; `first_row`: frame row of hits' row 0."""
     out = np.empty((*hits.depth.shape, 3), np.uint8) if out is None else out
     diffuse, specular, albedo = material if material is not None else (_NO_TABLE, _NO_TABLE, _NO_TABLE)
     _shade_pixels(_NO_RECORDS if records is None else records, _NO_PLANES if planes is None else planes,
                   records is not None, interpolate, scale_steps is not None, hits.face, hits.barycentric,
                   hits.normal, hits.direction, hits.depth, _NO_SCALE if scale_steps is None else scale_steps,
                   decode, encode, out, material is not None, diffuse, specular, albedo,
-                  indirect is not None, _NO_INDIRECT if indirect is None else indirect)
+                  indirect is not None, _NO_INDIRECT if indirect is None else indirect, np.float32(indirect_scale),
+                  first_row, INDIRECT_BLOCK)
     return out
 
 
 @numba.njit(nogil=True)
 def _shade_pixels(records, planes, from_records, interpolate, spot, face, barycentric, normal, direction, depth,
                   scale_steps, decode, encode, out, principled, diffuse_table, specular_table, albedo_table,
-                  lit_indirectly, indirect):  # pragma: no cover (compiled)
+                  lit_indirectly, indirect, indirect_scale, first_row, block):  # pragma: no cover (compiled)
     """Every pixel in float32 with a fixed order of operations (no fast-math), so runs are bit-identical:
 
     albedo  a = c0 + 0.5 + u (c1 - c0) + v (c2 - c0), clipped to [0, 255], truncated (the + 0.5 rounds)
@@ -258,7 +266,7 @@ def _shade_pixels(records, planes, from_records, interpolate, spot, face, baryce
             exactly like scaling the clipped linear value afterwards.
             out = encode[trunc(clip(decode[a] s, 0, steps) + 0.5)]
     principled / indirect (material.py; m = table entry of mu = |n . ray| / |ray|, i = indirect irradiance
-            in the same units as s):
+            of the pixel's block times indirect_scale: the same units as s):
             out = encode[trunc(clip(decode[a] (s + i) diffuse[m] + s specular[m] + i albedo[m], 0, steps) + 0.5)]
             (a diffuse surface: diffuse = 1, specular = albedo = 0)
     """
@@ -297,7 +305,9 @@ def _shade_pixels(records, planes, from_records, interpolate, spot, face, baryce
                 else:
                     albedo = records[f, channel]
                 if spot and (principled or lit_indirectly):
-                    received = indirect[row, column, channel] if lit_indirectly else np.float32(0.0)
+                    received = np.float32(0.0)
+                    if lit_indirectly:
+                        received = indirect[(first_row + row) // block, column // block, channel] * indirect_scale
                     linear = decode[albedo] * (light + received) * base + light * gloss + received * bounced
                     out[row, column, channel] = encode[np.int32(min(max(linear, low), steps) + half)]
                 elif spot:

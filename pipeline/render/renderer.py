@@ -87,7 +87,7 @@ class VideoRenderer:
         # Frames are shaded in row bands: a band's temporaries stay in the core's cache (4 bands of a 640x480
         # frame: 12 % faster than whole frames), and with several cast threads the bands run in parallel
         # (numpy releases the GIL: 2 threads take ~60 % of the time). A 1-CPU worker runs them inline.
-        self._bands = [(rows, Shader(embodiment.illumination, exposure, self.ray_lengths[rows]))
+        self._bands = [(rows, Shader(embodiment.illumination, exposure, self.ray_lengths[rows], rows.start))
                        for rows in row_bands(self.camera.height, max(MIN_BANDS, self.raycaster.threads))]
 
     def trace(self, camera_to_world: np.ndarray) -> RayHits:
@@ -141,7 +141,7 @@ class VideoRenderer:
         rows, shader = self._bands[band]
         hits = hits.rows(rows)
         sensor = self.embodiment.sensor
-        shader.shade_surfaces(self.colors, hits, out=frame.rgb[rows], indirect=None if indirect is None else indirect[rows])
+        shader.shade_surfaces(self.colors, hits, out=frame.rgb[rows], indirect=indirect)
         frame.depth[rows] = depth_to_millimetres(hits.depth, sensor.near, sensor.far)
         # A miss (face F) picks the trailing 0 (void) of both tables; "clip" writes straight into `out`.
         np.take(self.labels.object_ids, hits.face, out=frame.panoptic[rows], mode="clip")

@@ -18,9 +18,10 @@ from tests.render.tiny_scenes import _Builder, embodiment, look_at, room_scene
 GREY = 188  # sRGB level whose linear albedo is ~0.50
 
 
-def _spot(bounces: int, material: str = "diffuse", lights: int = 256) -> Illumination:
+def _spot(bounces: int, material: str = "diffuse", lights: int = 256, traced: int = 2) -> Illumination:
     return Illumination(kind="spot", power=20.0, material=material, specular=1.0, roughness=0.5,
-                        indirect=IndirectLight(bounces=bounces, virtual_lights=lights, gather_stride=4, interleave=2))
+                        indirect=IndirectLight(bounces=bounces, traced_bounces=traced, virtual_lights=lights,
+                                               gather_stride=4, interleave=2))
 
 
 def _box(size: float, colors: dict[int, tuple[int, int, int]] | None = None) -> tuple:
@@ -69,15 +70,17 @@ def test_indirect_light_is_zero_where_nothing_can_bounce() -> None:
     assert np.array_equal(lit.render(pose).rgb, direct.render(pose).rgb)
     # The same box with grey sides does bounce light onto the far wall.
     grey, _ = _box(4.0)
-    assert VideoRenderer(grey, embodiment(light=_spot(bounces=1)), exposure=2.0).indirect.irradiance(
-        hits, pose)[hits.hit].min() > 0.0
+    blocks = VideoRenderer(grey, embodiment(light=_spot(bounces=1)), exposure=2.0).indirect.irradiance(hits, pose)
+    assert blocks.shape == (24, 32, 3)  # one value per 2 x 2 pixels of the 64 x 48 frame
+    assert blocks.min() > 0.0
 
 
-@pytest.mark.parametrize("bounces", [1, 2, 8])
-def test_closed_box_mean_radiance_approaches_direct_over_one_minus_albedo(bounces: int) -> None:
+@pytest.mark.parametrize(("bounces", "traced"), [(1, 1), (2, 2), (8, 8), (8, 2)])
+def test_closed_box_mean_radiance_approaches_direct_over_one_minus_albedo(bounces: int, traced: int) -> None:
+    """Traced bounces add rho^k each; untraced ones (8, 2) repeat the last traced one times the measured ratio."""
     scene, sides = _box(2.0)
     rho = float(srgb_to_linear(np.array([GREY / 255.0]))[0])
-    light = _spot(bounces=bounces, lights=64)
+    light = _spot(bounces=bounces, lights=64, traced=traced)
     gather = IndirectGather(SceneRaycaster(scene).mesh, SurfaceColors(scene), light, seed=0)
     pose = look_at(np.zeros(3), np.array([0.3, 0.2, 1.0]))
     points, normals = _surface_samples(sides, 3000, np.random.default_rng(1))
