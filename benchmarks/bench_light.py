@@ -14,11 +14,12 @@ Same run, same poses of the 1 M-triangle benchmark house (bench_render's planned
   authors' light paths and material: Principled specular 1.0 / roughness 0.5, 16 bounces of every kind;
   `REFERENCE` below says how many samples and that OpenImageDenoise cleaned it), for ours, for the
   authors' own Cycles 16 spp render, for our direct light alone, and (check of the direct model) ours
-  diffuse-direct against Cycles diffuse-direct. The reference is cached as 8-bit PNGs under
-  benchmarks/results/light/ with a JSON saying how it was made; `--reference` renders it anew.
+  diffuse-direct against Cycles diffuse-direct. The reference and the 16 spp images are cached as 8-bit
+  PNGs under benchmarks/results/light/ with JSONs saying how they were made; `--reference` and
+  `--cycles16` render them anew (the reference took 2-7 min per frame on the shared 2 cores).
 - speed: ours end to end (every buffer and the Zarr write, bench_render.run_ours), Mitsuba `direct` 1 spp,
   Cycles 1 spp (authors' light paths), per frame, in this run.
-- side-by-side PNGs: ours | Cycles 16 spp | reference, one per pose, under benchmarks/results/light/.
+- side-by-side PNGs: ours | Cycles 16 spp | reference, one per pose (half size), under benchmarks/results/light/.
 
 Blender's spot spreads its watts over the whole sphere (I = P / 4 pi, as if it were a point light) where
 our model spreads them over the cone (P / 2 pi for 180 degrees): Cycles' radiance is scaled by
@@ -63,7 +64,7 @@ TARGET_VS_MITSUBA = 1.5
 TARGET_VS_CYCLES = 25.0
 
 
-def mvpd_spot(material: str = "principled", bounces: int = 3) -> Illumination:
+def mvpd_spot(material: str = "principled", bounces: int = 16) -> Illumination:
     """The MVPd 20 W spot with the authors' material (or diffuse) and `bounces` of indirect light."""
     return Illumination(kind="spot", power=POWER, cone=180.0, blend=1.0, material=material, specular=1.0,
                         roughness=0.5, indirect=IndirectLight(bounces=bounces))
@@ -134,12 +135,30 @@ def ours_frames(scene: Scene, poses: np.ndarray, light: Illumination, seed: int 
     return [renderer.render(pose).rgb.copy() for pose in poses]
 
 
-def load_reference(count: int) -> list[np.ndarray] | None:
-    """The cached reference PNGs (RGB), or None when there are fewer than `count`."""
-    paths = [RESULTS / f"reference_{i:02d}.png" for i in range(count)]
+def load_cached(name: str, count: int) -> list[np.ndarray] | None:
+    """Cached 8-bit renders `<name>_XX.png` (RGB) of the quality poses, or None when there are fewer than `count`."""
+    paths = [RESULTS / f"{name}_{i:02d}.png" for i in range(count)]
     if not all(p.exists() for p in paths):
         return None
     return [cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in paths]
+
+
+def cache_renders(name: str, radiance: np.ndarray, render: dict, poses: np.ndarray, threads: int) -> list[np.ndarray]:
+    """Encode Cycles renders like ours, store them as `<name>_XX.png` with `<name>.json` saying how they were made."""
+    images = [to_8bit(image, BLENDER_SPOT_SCALE * EXPOSURE) for image in radiance]
+    for index, image in enumerate(images):
+        save_png(RESULTS / f"{name}_{index:02d}.png", image)
+    (RESULTS / f"{name}.json").write_text(json.dumps({
+        "renderer": f"Blender Cycles (bpy from PyPI, benchmarks/peer_cycles.py), CPU, {threads} threads",
+        "settings": {**render, "filter_width_px": 0.01, "light_paths": f"{render['bounces']} bounces of every kind",
+                     "material": "Principled BSDF, specular IOR level 1.0, IOR 1.5, roughness 0.5, base colour = vertex colour",
+                     "light": "spot 20 W parented to the camera, spot_size 180, blend 1.0, radius 0",
+                     "denoiser": "OpenImageDenoise, albedo + normal passes, prefilter ACCURATE" if render.get("denoise")
+                     else "none", "clamp_indirect": "Blender's default (10)", "world": "none"},
+        "encoding": f"linear radiance x {BLENDER_SPOT_SCALE} (Blender's spot watts) x exposure {EXPOSURE}, "
+                    "clipped, sRGB, rounded to 8 bits",
+        "poses": np.asarray(poses).tolist()}, indent=1) + "\n")
+    return images
 
 
 def save_png(path: Path, rgb: np.ndarray) -> None:
@@ -154,6 +173,8 @@ def main() -> None:
     parser.add_argument("--cycles-speed-frames", type=int, default=4, help="frames of Cycles' 1 spp timing")
     parser.add_argument("--repeats", type=int, default=3, help="speed runs of ours and Mitsuba (median kept)")
     parser.add_argument("--reference", action="store_true", help="render the converged reference anew")
+    parser.add_argument("--cycles16", action="store_true", help="render the authors' 16 spp images anew "
+                        "(cached beside the reference otherwise: ~1 min per frame on 2 cores)")
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
 
@@ -174,42 +195,34 @@ def measure(args: argparse.Namespace, folder: Path) -> dict[str, Any]:
     scene, all_poses, pose_source = planned_poses(args.speed_frames, folder)
     poses = spread(all_poses, args.poses)
     speed_poses = spread(all_poses, args.speed_frames)
-    reference = None if args.reference else load_reference(len(poses))
+    reference = None if args.reference else load_cached("reference", len(poses))
+    authors = None if args.cycles16 else load_cached("cycles16", len(poses))
     quality_frames = {"frames": len(poses)}
-    renders = [{**AUTHORS, **quality_frames}, {"name": "direct", "samples": 4, "bounces": 0, "material": "diffuse",
-                                               **quality_frames},
+    renders = [{"name": "direct", "samples": 4, "bounces": 0, "material": "diffuse", **quality_frames},
                {"name": "cycles1", "samples": 1, "bounces": 16, "frames": args.cycles_speed_frames}]
-    if reference is None:
-        renders.append({**REFERENCE, **quality_frames})
-    mitsuba_runs = [{"name": f"direct1_{k}", "integrator": "direct", "samples": 1} for k in range(args.repeats)]
+    renders += [{**AUTHORS, **quality_frames}] if authors is None else []
+    renders += [{**REFERENCE, **quality_frames}] if reference is None else []
     # The poses file holds the quality poses, then the speed poses (Mitsuba times those).
-    export(scene, np.concatenate([poses, speed_poses]), folder / "peer", renders, mitsuba_runs, args.threads)
+    export(scene, np.concatenate([poses, speed_poses]), folder / "peer", renders, [], args.threads)
     result: dict[str, Any] = {"scene": {"triangles": scene.triangle_count, "poses": pose_source},
                               "resolution": [640, 480], "threads": args.threads, "exposure": EXPOSURE,
-                              "power_w": POWER, "quality_poses": len(poses), "speed_frames": len(speed_poses)}
+                              "power_w": POWER, "quality_poses": len(poses), "speed_frames": len(speed_poses),
+                              "ours": mvpd_spot().model_dump(mode="json")}
     cycles = peer_python("BPY_PYTHON", "/work/venvs/bpy/bin/python")
     cycles_ok = False
     if cycles is None:
         print("Cycles skipped: no bpy virtualenv (bash benchmarks/setup_light_peers.sh, or set BPY_PYTHON)")
     else:
         cycles_ok = run_peer(cycles, "peer_cycles.py", folder / "peer", folder / "cycles.log")
+    if cycles_ok and authors is None:
+        authors = cache_renders("cycles16", np.load(folder / "peer" / "cycles16.npz")["images"], AUTHORS, poses,
+                                args.threads)
     if cycles_ok and reference is None:
-        images = np.load(folder / "peer" / "reference.npz")["images"][: len(poses)]
-        reference = [to_8bit(image, BLENDER_SPOT_SCALE * EXPOSURE) for image in images]
-        for index, image in enumerate(reference):
-            save_png(RESULTS / f"reference_{index:02d}.png", image)
-        (RESULTS / "reference.json").write_text(json.dumps({
-            "renderer": "Blender Cycles (bpy from PyPI), CPU, " + f"{args.threads} threads",
-            "settings": {**REFERENCE, "filter_width_px": 0.01, "light_paths": "16 bounces of every kind",
-                         "material": "Principled BSDF, specular IOR level 1.0, IOR 1.5, roughness 0.5, base colour = vertex colour",
-                         "light": "spot 20 W parented to the camera, spot_size 180, blend 1.0, radius 0",
-                         "denoiser": "OpenImageDenoise, albedo + normal passes, prefilter ACCURATE"},
-            "encoding": f"linear radiance x {BLENDER_SPOT_SCALE} (Blender's spot watts) x exposure {EXPOSURE}, "
-                        "clipped, sRGB, rounded to 8 bits",
-            "poses": np.asarray(poses).tolist()}, indent=1))
+        reference = cache_renders("reference", np.load(folder / "peer" / "reference.npz")["images"], REFERENCE, poses,
+                                  args.threads)
     if reference is None:
         print("no converged reference (cached PNGs missing and Cycles unavailable): quality not measured")
-    quality = measure_quality(scene, poses, reference, folder / "peer" if cycles_ok else None)
+    quality = measure_quality(scene, poses, reference, authors, folder / "peer" if cycles_ok else None)
     result["quality"] = quality
     result["speed"] = measure_speed(scene, speed_poses, args, folder, cycles_ok)
     result["targets"] = targets(result)
@@ -217,11 +230,11 @@ def measure(args: argparse.Namespace, folder: Path) -> dict[str, Any]:
 
 
 def measure_quality(scene: Scene, poses: np.ndarray, reference: list[np.ndarray] | None,
-                    peer: Path | None) -> dict[str, Any]:
-    """PSNR / MAD of ours and of Cycles 16 spp against the reference; the direct-model check; side-by-sides."""
+                    authors: list[np.ndarray] | None, peer: Path | None) -> dict[str, Any]:
+    """PSNR / MAD of ours and of Cycles 16 spp (`authors`) against the reference; the direct-model check
+    (Cycles' diffuse direct render in `peer`); side-by-side PNGs."""
     quality: dict[str, Any] = {}
     ours = ours_frames(scene, poses, mvpd_spot())
-    ours_direct = ours_frames(scene, poses, mvpd_spot(bounces=0))
     if peer is not None:
         cycles_direct = [to_8bit(image, BLENDER_SPOT_SCALE * EXPOSURE)
                          for image in np.load(peer / "direct.npz")["images"][: len(poses)]]
@@ -230,41 +243,69 @@ def measure_quality(scene: Scene, poses: np.ndarray, reference: list[np.ndarray]
     if reference is None:
         return quality
     quality["ours_vs_reference"] = compare(ours, reference)
-    quality["ours_direct_only_vs_reference"] = compare(ours_direct, reference)
-    if peer is not None:
-        authors = [to_8bit(image, BLENDER_SPOT_SCALE * EXPOSURE)
-                   for image in np.load(peer / "cycles16.npz")["images"][: len(poses)]]
+    quality["ours_direct_only_vs_reference"] = compare(ours_frames(scene, poses, mvpd_spot(bounces=0)), reference)
+    quality["ours_diffuse_material_vs_reference"] = compare(ours_frames(scene, poses, mvpd_spot(material="diffuse")),
+                                                            reference)
+    if authors is not None:
         quality["cycles16_vs_reference"] = compare(authors, reference)
         for index, (a, b, c) in enumerate(zip(ours, authors, reference)):
-            save_png(RESULTS / f"side_by_side_{index:02d}.png", np.concatenate([a, b, c], axis=1))
+            # Half size (area-averaged) keeps the 8 files small; the full-size panels are the cached PNGs.
+            panels = np.concatenate([a, b, c], axis=1)
+            save_png(RESULTS / f"side_by_side_{index:02d}.png",
+                     cv2.resize(panels, (panels.shape[1] // 2, panels.shape[0] // 2), interpolation=cv2.INTER_AREA))
     return quality
 
 
 def measure_speed(scene: Scene, poses: np.ndarray, args: argparse.Namespace, folder: Path,
                   cycles_ok: bool) -> dict[str, Any]:
-    """Seconds per frame of ours end to end (median of repeats), Mitsuba direct 1 spp, Cycles 1 spp."""
+    """Per frame: wall and CPU seconds of ours end to end (each repeat), Mitsuba direct 1 spp (each repeat),
+    Cycles 1 spp; ratios of medians. The machine is shared: CPU seconds (every thread of the process) say
+    what a frame costs whatever else runs, wall seconds what this run saw."""
     body = Embodiment(name="bench", sensor=Sensor(), illumination=mvpd_spot())
-    runs = []
-    for repeat in range(args.repeats):
-        timing = run_ours(scene, poses, body, EXPOSURE, folder / f"speed{repeat}.zarr", threads=args.threads)
-        runs.append(timing["total_s"] / len(poses))
-        shutil.rmtree(folder / f"speed{repeat}.zarr", ignore_errors=True)
-    speed: dict[str, Any] = {"ours_s_per_frame": runs, "ours_fps_median": round(1.0 / float(np.median(runs)), 2)}
     mitsuba = peer_python("MITSUBA_PYTHON", "/work/venvs/mitsuba/bin/python")
     if mitsuba is None:
         print("Mitsuba skipped: no mitsuba virtualenv (bash benchmarks/setup_light_peers.sh, or set MITSUBA_PYTHON)")
-    elif run_peer(mitsuba, "peer_mitsuba.py", folder / "peer", folder / "mitsuba.log"):
-        count = args.poses
-        per_run = [float(np.median(np.load(folder / "peer" / f"mitsuba_direct1_{k}.npz")["seconds"][count:]))
-                   for k in range(args.repeats)]
-        speed["mitsuba_direct1_s_per_frame"] = per_run
-        speed["mitsuba_fps_median"] = round(1.0 / float(np.median(per_run)), 2)
-        speed["ours_vs_mitsuba"] = round(float(np.median(per_run)) / float(np.median(runs)), 2)
+    wall, cpu, their_wall, their_cpu = [], [], [], []
+    settings_path = folder / "peer" / "settings.json"
+    for repeat in range(args.repeats):  # ours and Mitsuba take turns, so load drifts fall on both alike
+        timing = run_ours(scene, poses, body, EXPOSURE, folder / f"speed{repeat}.zarr", threads=args.threads)
+        wall.append(timing["total_s"] / len(poses))
+        cpu.append(timing["cpu_s"] / len(poses))
+        shutil.rmtree(folder / f"speed{repeat}.zarr", ignore_errors=True)
+        if mitsuba is None:
+            continue
+        settings = json.loads(settings_path.read_text())
+        settings["mitsuba"] = [{"name": f"direct1_{repeat}", "integrator": "direct", "samples": 1}]
+        settings_path.write_text(json.dumps(settings, indent=1))
+        if not run_peer(mitsuba, "peer_mitsuba.py", folder / "peer", folder / "mitsuba.log"):
+            mitsuba = None
+            continue
+        run = np.load(folder / "peer" / f"mitsuba_direct1_{repeat}.npz")
+        # The peer renders the quality poses first: time the speed poses only.
+        their_wall.append(float(np.median(run["seconds"][args.poses:])))
+        their_cpu.append(float(np.median(run["cpu_seconds"][args.poses:])))
+    speed: dict[str, Any] = {"ours_end_to_end": per_frame(wall, cpu)}
+    if their_wall and mitsuba is not None:
+        speed["mitsuba_direct1"] = per_frame(their_wall, their_cpu)
+        speed["ours_vs_mitsuba"] = ratios(speed["mitsuba_direct1"], speed["ours_end_to_end"])
     if cycles_ok:
-        seconds = np.load(folder / "peer" / "cycles1.npz")["seconds"]
-        speed["cycles1_s_per_frame"] = [round(float(s), 3) for s in seconds]
-        speed["ours_vs_cycles1"] = round(float(np.median(seconds)) / float(np.median(runs)), 1)
+        run = np.load(folder / "peer" / "cycles1.npz")
+        speed["cycles1"] = per_frame(list(run["seconds"]), list(run["cpu_seconds"]))
+        speed["ours_vs_cycles1"] = ratios(speed["cycles1"], speed["ours_end_to_end"])
     return speed
+
+
+def per_frame(wall: list[float], cpu: list[float]) -> dict[str, Any]:
+    """Medians and spreads of per-frame wall and CPU seconds, and the fps of the median."""
+    return {"wall_s": [round(float(v), 4) for v in wall], "cpu_s": [round(float(v), 4) for v in cpu],
+            "wall_median_s": round(float(np.median(wall)), 4), "cpu_median_s": round(float(np.median(cpu)), 4),
+            "fps_median": round(1.0 / float(np.median(wall)), 2)}
+
+
+def ratios(theirs: dict[str, Any], ours: dict[str, Any]) -> dict[str, float]:
+    """How many times faster ours is, by wall time (the target) and by CPU time."""
+    return {"wall": round(theirs["wall_median_s"] / ours["wall_median_s"], 2),
+            "cpu": round(theirs["cpu_median_s"] / ours["cpu_median_s"], 2)}
 
 
 def targets(result: dict[str, Any]) -> dict[str, Any]:
@@ -277,9 +318,9 @@ def targets(result: dict[str, Any]) -> dict[str, Any]:
         if "cycles16_vs_reference" in quality:
             out["closer_than_cycles16"] = ours > quality["cycles16_vs_reference"]["psnr_median"]
     if "ours_vs_mitsuba" in speed:
-        out["at_least_1.5x_mitsuba_direct1"] = speed["ours_vs_mitsuba"] >= TARGET_VS_MITSUBA
+        out["at_least_1.5x_mitsuba_direct1"] = speed["ours_vs_mitsuba"]["wall"] >= TARGET_VS_MITSUBA
     if "ours_vs_cycles1" in speed:
-        out["at_least_25x_cycles1"] = speed["ours_vs_cycles1"] >= TARGET_VS_CYCLES
+        out["at_least_25x_cycles1"] = speed["ours_vs_cycles1"]["wall"] >= TARGET_VS_CYCLES
     return out
 
 

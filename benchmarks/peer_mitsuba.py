@@ -4,7 +4,7 @@ Run by bench_light.py as `/work/venvs/mitsuba/bin/python benchmarks/peer_mitsuba
 `bash benchmarks/setup_light_peers.sh` (on Debian 12 Dr.Jit's LLVM backend needs apt's `libllvm19`, found
 through DRJIT_LIBLLVM_PATH). Reads the same FOLDER as peer_cycles.py (`scene.npz`, `poses.npy`,
 `settings.json`) and writes `mitsuba_<name>.npz` (images (N, H, W, 3) float32 linear radiance, seconds
-per frame) for each entry of `settings["mitsuba"]`: integrator `direct` or `path`, samples per pixel.
+per frame, and CPU seconds of the process per frame) for each entry of `settings["mitsuba"]`: integrator `direct` or `path`, samples per pixel.
 
 The light is Mitsuba's `spot` with our intensity I = P / Omega (W/sr) and a 90-degree cutoff; its falloff is
 linear in angle (Mitsuba's), not Blender's smoothstep, so its pixels are compared for speed, not for light.
@@ -62,19 +62,21 @@ def render_all(folder: Path, settings: dict, mesh: mi.Mesh, poses: np.ndarray, r
     params = mi.traverse(scene)
     camera_key = next(key for key in params.keys() if key.endswith("to_world") and "camera" in key)
     light_key = next(key for key in params.keys() if key.endswith("to_world") and "spot" in key)
-    images, seconds = [], []
+    images, seconds, cpu_seconds = [], [], []
     for index, pose in enumerate([poses[0], *poses]):  # the first frame warms the kernels up
         transform = mi.ScalarTransform4f(np.asarray(pose @ OPENCV_TO_MITSUBA, np.float64).tolist())
         params[camera_key] = transform
         params[light_key] = transform
         params.update()
-        started = time.perf_counter()
+        started, cpu_started = time.perf_counter(), time.process_time()
         image = np.array(mi.render(scene, spp=render["samples"], seed=index), np.float32)
         dr.sync_thread()
         if index > 0:
             seconds.append(time.perf_counter() - started)
+            cpu_seconds.append(time.process_time() - cpu_started)
             images.append(image[..., :3])
-    np.savez(folder / f"mitsuba_{render['name']}.npz", images=np.stack(images), seconds=np.array(seconds))
+    np.savez(folder / f"mitsuba_{render['name']}.npz", images=np.stack(images), seconds=np.array(seconds),
+             cpu_seconds=np.array(cpu_seconds))
     print(f"mitsuba {render['name']}: {np.median(seconds):.3f} s per frame", flush=True)
 
 

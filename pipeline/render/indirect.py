@@ -92,13 +92,13 @@ class IndirectGather:
         groups, pattern_index = self.ray_groups, np.arange(len(self.directions))
         camera = np.asarray(camera_to_world, np.float64)[:3, 3]
         found: list[tuple[np.ndarray, ...]] = []
-        emitted = [float(self.ray_flux.sum())]  # flux leaving the spot, then each bounce's lights (summed over RGB / 3)
+        emitted = [np.full(3, self.ray_flux.sum())]  # RGB flux leaving the spot, then each bounce's lights
         for bounce in range(self.traced):
             positions, normals, reflected, keep = self._land(origins, directions, flux)
             positions, normals, flux = positions[keep], normals[keep], reflected[keep]
             groups, pattern_index = groups[keep], pattern_index[keep]
             found.append((positions, normals, flux, groups))
-            emitted.append(float(flux.sum()) / 3.0)
+            emitted.append(flux.sum(axis=0, dtype=np.float64))
             if bounce + 1 == self.traced:
                 break
             # Each light's path keeps its own numbers of the pattern, whichever other paths were lost.
@@ -106,11 +106,12 @@ class IndirectGather:
             lift = SURFACE_OFFSET * (1.0 + np.linalg.norm(positions - camera, axis=1, keepdims=True))
             origins = (positions + normals * lift).astype(np.float32)
         untraced = self.settings.bounces - self.traced
-        if untraced > 0 and emitted[-2] > 0:
-            # Later bounces look like the last traced one, each r times as strong (r < 1: light is absorbed).
-            ratio = min(emitted[-1] / emitted[-2], MAX_BOUNCE_RATIO)
-            found[-1] = (*found[-1][:2], found[-1][2] * np.float32(sum(ratio**k for k in range(untraced + 1))),
-                         found[-1][3])
+        if untraced > 0:
+            # Later bounces look like the last traced one, each r times as strong per channel (r < 1: light is
+            # absorbed; per channel, because each bounce saturates the colour of the light further).
+            ratio = np.minimum(emitted[-1] / np.maximum(emitted[-2], 1e-30), MAX_BOUNCE_RATIO)
+            series = sum(ratio**k for k in range(untraced + 1)).astype(np.float32)
+            found[-1] = (*found[-1][:2], found[-1][2] * series, found[-1][3])
         return VirtualLights(*(np.ascontiguousarray(np.concatenate([part[k] for part in found])) for k in range(4)))
 
     def _land(self, origins: np.ndarray, directions: np.ndarray, flux: np.ndarray

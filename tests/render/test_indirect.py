@@ -21,7 +21,7 @@ GREY = 188  # sRGB level whose linear albedo is ~0.50
 def _spot(bounces: int, material: str = "diffuse", lights: int = 256, traced: int = 2) -> Illumination:
     return Illumination(kind="spot", power=20.0, material=material, specular=1.0, roughness=0.5,
                         indirect=IndirectLight(bounces=bounces, traced_bounces=traced, virtual_lights=lights,
-                                               gather_stride=4, interleave=2))
+                                               gather_stride=4, interleave=2, clamp_distance=0.1))
 
 
 def _box(size: float, colors: dict[int, tuple[int, int, int]] | None = None) -> tuple:
