@@ -4,7 +4,8 @@ Run by bench_light.py as `/work/venvs/bpy/bin/python benchmarks/peer_cycles.py F
 `bash benchmarks/setup_light_peers.sh`. FOLDER holds `scene.npz` (vertices (V, 3) float32, faces (F, 3) int32,
 colors (V, 3) float32 linear albedo), `poses.npy` ((N, 4, 4) camera-to-world, OpenCV axes) and `settings.json`
 (camera, light, material, the list of `renders` to make). Each render writes `<name>.npz` beside them:
-`images` (N, H, W, 3) float32 linear radiance as Cycles reports it, and `seconds` per frame.
+`images` (N, H, W, 3) float32 linear radiance as Cycles reports it, `seconds` and `cpu_seconds` (of the
+process, every thread) per frame (render and EXR write).
 
 The scene is built as MVPd's `simulators/blender/render_color.py` sets it up: a spot light parented to the
 camera (spot_size 180 degrees, spot_blend 1.0, shadow_soft_size 0), Cycles with the given samples and
@@ -137,21 +138,23 @@ def render_all(folder: Path, poses: np.ndarray, camera: bpy.types.Object, render
     slot = 1 if render.get("material") == "diffuse" else 0
     scene.objects["house"].data.polygons.foreach_set("material_index", np.full(len(scene.objects["house"].data.polygons), slot, np.int32))
     scene.objects["house"].data.update()
-    images, seconds = [], []
+    images, seconds, cpu_seconds = [], [], []
     with tempfile.TemporaryDirectory() as scratch:
         for index, pose in enumerate(poses):
             camera.matrix_world = Matrix((pose @ OPENCV_TO_BLENDER).tolist())
             bpy.context.view_layer.update()
             scene.render.filepath = str(Path(scratch) / f"{index}.exr")
-            started = time.perf_counter()
+            started, cpu_started = time.perf_counter(), time.process_time()
             bpy.ops.render.render(write_still=True)
             seconds.append(time.perf_counter() - started)
+            cpu_seconds.append(time.process_time() - cpu_started)
             image = bpy.data.images.load(scene.render.filepath)
             pixels = np.array(image.pixels[:], np.float32).reshape(image.size[1], image.size[0], 4)
             bpy.data.images.remove(image)
             images.append(pixels[::-1, :, :3])  # Blender's rows start at the bottom
             print(f"cycles {render['name']}: frame {index} {seconds[-1]:.2f} s", flush=True)
-    np.savez(folder / f"{render['name']}.npz", images=np.stack(images), seconds=np.array(seconds))
+    np.savez(folder / f"{render['name']}.npz", images=np.stack(images), seconds=np.array(seconds),
+             cpu_seconds=np.array(cpu_seconds))
 
 
 def main() -> None:
