@@ -116,3 +116,18 @@ def test_principled_highlight_at_normal_incidence_matches_the_ggx_lobe() -> None
     # The diffuse base keeps what the lobe does not reflect; more is reflected at grazing angles.
     assert tables.diffuse[-1] == pytest.approx(1.0 - tables.albedo[-1])
     assert 0.07 < tables.albedo[-1] < 0.1 < tables.albedo[100]
+
+
+def test_textured_scenes_bounce_their_texture_colours() -> None:
+    # A textured room (every face one texel of a 1 x 1 texture): the bounce colours come from the texture.
+    scene = room_scene()
+    scene.face_uvs = np.zeros((len(scene.faces), 3, 2), np.float32)
+    scene.face_material = np.zeros(len(scene.faces), np.uint16)
+    scene.textures = [np.array([[[200, 40, 40]]], np.uint8)]
+    scene.vertex_colors = None
+    pose = look_at(np.array([0.0, 1.2, -1.5]), np.array([0.0, 0.5, 1.5]))
+    hits = VideoRenderer(scene, embodiment(), exposure=2.0).trace(pose)
+    assert np.all(SurfaceColors(scene).albedo_at(hits.face[hits.hit], hits.barycentric[hits.hit]) == [200, 40, 40])
+    blocks = VideoRenderer(scene, embodiment(light=_spot(bounces=2)), exposure=2.0).indirect.irradiance(hits, pose)
+    lit = blocks[hits.hit[::2, ::2]]
+    assert np.all(lit[:, 0] > lit[:, 1])  # red walls bounce red light
