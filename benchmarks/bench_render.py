@@ -212,7 +212,7 @@ def run_ours(scene: Scene, poses: np.ndarray, body: Embodiment, exposure: float,
         t0 = time.perf_counter()
         hits = renderer.trace(pose)
         t1 = time.perf_counter()
-        frame = renderer.buffers(hits)
+        frame = renderer.buffers(hits, camera_to_world=pose)
         t2 = time.perf_counter()
         frame_segments(frame.panoptic, labels, frame.dense)
         t3 = time.perf_counter()

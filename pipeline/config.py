@@ -182,13 +182,45 @@ class Body(Strict):
     max_slope: float = Field(20.0, ge=0, lt=90, description="degrees of walkable slope")
 
 
+class IndirectLight(Strict):
+    """Light that bounces off surfaces before it reaches the camera (spot only; schemas/render.md).
+
+    Virtual point lights are traced from the spot (`virtual_lights` per bounce, one fixed pattern per job
+    seed) and gathered with shadow rays every `gather_stride` pixels, each gather pixel seeing one of
+    `interleave`^2 subsets of the lights; a geometry-aware filter recombines the subsets and fills the
+    pixels between. 0 bounces: direct light only (surfaces the spot cannot see are black). Bounces past
+    `traced_bounces` cost nothing: each later bounce is taken as the last traced one times the ratio r of
+    its flux to the bounce before, so the last traced lights shine 1 + r + ... + r^(bounces - traced) times.
+    """
+
+    bounces: int = Field(0, ge=0, le=64, description="bounces of light after the first hit; 0 = direct only")
+    traced_bounces: int = Field(3, ge=1, le=64, description="bounces traced with virtual lights; the bounces past "
+                                "them repeat the last traced one, scaled by the measured ratio of successive bounces")
+    virtual_lights: int = Field(256, ge=16, le=65536, description="virtual point lights per bounce")
+    gather_stride: int = Field(12, ge=1, le=64, description="pixels between gather points (each axis)")
+    interleave: int = Field(4, ge=1, le=8, description="gather points in a block of interleave x interleave see "
+                            "different subsets of the lights")
+    clamp_distance: float = Field(0.3, gt=0, description="metres; a light nearer than this to a gather point counts "
+                                  "as this far (bounds the 1/d^2 spikes of virtual lights)")
+
+
 class Illumination(Strict):
-    """`ambient`: surface colour as is. `spot`: a light at the camera (see schemas/README.md)."""
+    """`ambient`: surface colour as is. `spot`: a light at the camera (see schemas/render.md).
+
+    `material` says how surfaces reflect the spot: `diffuse` (Lambertian, albedo = the scan's colour) or
+    `principled` (Blender's Principled BSDF as MVPd's Cycles renders used it: that diffuse base under a
+    dielectric GGX specular lobe of `specular` and `roughness`).
+    """
 
     kind: Literal["ambient", "spot"] = "ambient"
     power: float = Field(0.0, ge=0, description="watts (spot only)")
     cone: float = Field(180.0, gt=0, le=180, description="full cone angle, degrees")
     blend: float = Field(1.0, ge=0, le=1, description="fraction of the cone over which light fades out")
+    material: Literal["diffuse", "principled"] = Field("diffuse", description="surface reflection of the spot")
+    specular: float = Field(0.5, ge=0, le=2, description="principled: Blender's specular (IOR level); "
+                            "normal-incidence reflectance 0.08 * specular")
+    roughness: float = Field(0.5, ge=0.01, le=1, description="principled: Blender's roughness (GGX alpha = roughness^2)")
+    indirect: IndirectLight = IndirectLight()
 
     @model_validator(mode="after")
     def _spot_has_power(self) -> "Illumination":

@@ -67,6 +67,7 @@ def _library() -> ctypes.CDLL:
         "rtcAttachGeometry": (uint, [handle, handle]),
         "rtcReleaseGeometry": (None, [handle]),
         "rtcIntersect8": (None, [size, handle, size, size]),
+        "rtcOccluded8": (None, [size, handle, size, size]),
     }
     for name, (result, arguments) in signatures.items():
         function = getattr(lib, name)
@@ -127,6 +128,20 @@ class EmbreeMesh:
         cast = _cast_kernel()
         cast(self.scene, packet, valid, rows.start, rows.stop, pixel_x, pixel_y,
              np.ascontiguousarray(camera_to_world, np.float64), miss, *out)
+
+
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, tnear: float,
+                  out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """Closest hits of arbitrary rays (n, 3) into `out` = (t, face, barycentric, normal): t = inf, face = -1
+        and normal 0 on a miss; `normal` is the unit geometric normal. Used for the bounces of indirect light."""
+        _rays_kernel()(self.scene, _aligned((_PACKET_ROWS, _PACKET), np.uint32), _aligned((_PACKET,), np.int32),
+                       origins, directions, np.float32(tnear), *out)
+
+    def occluded(self, origins: np.ndarray, directions: np.ndarray, tfar: np.ndarray, out: np.ndarray) -> None:
+        """Shadow rays: out[i] = True when a triangle lies on origins[i] + t directions[i], 0 < t < tfar[i]
+        (rtcOccluded8: stops at the first triangle found, cheaper than a closest hit). Releases the GIL."""
+        _occluded_kernel()(self.scene, _aligned((_PACKET_ROWS, _PACKET), np.uint32), _aligned((_PACKET,), np.int32),
+                           origins, directions, tfar, out)
 
 
 def _aligned(shape: tuple[int, ...], dtype: type) -> np.ndarray:
@@ -192,3 +207,70 @@ def _cast_kernel():  # noqa: ANN202 (a numba dispatcher)
                     normal[row, column, 2] = nz / length
 
     return cast
+
+
+@numba.njit(nogil=True, inline="always")
+def _load_packet(packet, valid, start, count, origins, directions, tnear, tfar):  # pragma: no cover (compiled)
+    """Rays start .. start + count (count <= 8) into one packet; the other lanes are masked off."""
+    lanes = packet.view(np.float32)
+    for k in range(_PACKET):
+        i = start + min(k, count - 1)  # a masked lane repeats a valid ray: harmless
+        valid[k] = -1 if k < count else 0
+        for axis in range(3):
+            lanes[_ORG + axis, k] = origins[i, axis]
+            lanes[_DIR + axis, k] = directions[i, axis]
+        lanes[_TNEAR, k] = tnear
+        lanes[_TIME, k] = 0.0
+        lanes[_TFAR, k] = tfar[i] if tfar.size > 1 else tfar[0]
+        packet[_MASK, k] = _INVALID_ID
+        packet[_ID, k] = 0
+        packet[_FLAGS, k] = 0
+        packet[_GEOM, k] = _INVALID_ID
+        packet[_INST, k] = _INVALID_ID
+
+
+@cache
+def _rays_kernel():  # noqa: ANN202 (a numba dispatcher)
+    """Closest hits of arbitrary rays, 8 at a time."""
+    intersect8 = _library().rtcIntersect8
+
+    @numba.njit(nogil=True)
+    def rays(scene, packet, valid, origins, directions, tnear, t, face, barycentric, normal):
+        lanes = packet.view(np.float32)
+        infinite = np.full(1, np.inf, np.float32)
+        for start in range(0, len(origins), _PACKET):
+            count = min(_PACKET, len(origins) - start)
+            _load_packet(packet, valid, start, count, origins, directions, tnear, infinite)
+            intersect8(valid.ctypes.data, scene, packet.ctypes.data, 0)
+            for k in range(count):
+                i = start + k
+                nx, ny, nz = lanes[_NG, k], lanes[_NG + 1, k], lanes[_NG + 2, k]
+                length = np.sqrt(nx * nx + ny * ny + nz * nz)
+                if packet[_GEOM, k] == _INVALID_ID or length == 0.0:
+                    t[i], face[i] = np.inf, -1
+                    barycentric[i, 0] = barycentric[i, 1] = 0.0
+                    normal[i, 0] = normal[i, 1] = normal[i, 2] = 0.0
+                    continue
+                t[i], face[i] = lanes[_TFAR, k], packet[_PRIM, k]
+                barycentric[i, 0], barycentric[i, 1] = lanes[_U, k], lanes[_V, k]
+                normal[i, 0], normal[i, 1], normal[i, 2] = nx / length, ny / length, nz / length
+
+    return rays
+
+
+@cache
+def _occluded_kernel():  # noqa: ANN202 (a numba dispatcher)
+    """Shadow rays, 8 at a time (RTCRayHit8 starts with the RTCRay8 that rtcOccluded8 reads)."""
+    occluded8 = _library().rtcOccluded8
+
+    @numba.njit(nogil=True)
+    def occluded(scene, packet, valid, origins, directions, tfar, out):
+        lanes = packet.view(np.float32)
+        for start in range(0, len(origins), _PACKET):
+            count = min(_PACKET, len(origins) - start)
+            _load_packet(packet, valid, start, count, origins, directions, np.float32(0.0), tfar)
+            occluded8(valid.ctypes.data, scene, packet.ctypes.data, 0)
+            for k in range(count):
+                out[start + k] = lanes[_TFAR, k] < 0.0  # Embree sets tfar = -inf on a blocked ray
+
+    return occluded

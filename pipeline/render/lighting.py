@@ -23,12 +23,16 @@ import numba
 import numpy as np
 
 from pipeline.config import Illumination, Job
+from pipeline.render.material import reflection_tables
 from pipeline.render.raycaster import RayHits
 from pipeline.scenes.scene import Scene
 
 # Exposure derived when the job gives none: a white Lambertian surface facing the brightest spot
 # light of the job, on its axis at this distance, is exactly full scale.
 REFERENCE_DISTANCE_M = 2.0
+# Pixels per side of the blocks that share one value of indirect light (indirect.py): it varies slowly,
+# and filling 2 x 2 blocks costs a quarter of filling every pixel (the filter's weights dominate the gather).
+INDIRECT_BLOCK = 2
 # Albedo of faces without colour information (neither vertex colours nor a texture).
 DEFAULT_GREY = 160
 
@@ -118,6 +122,20 @@ class SurfaceColors:
             out[hits.hit] = DEFAULT_GREY
         return np.ascontiguousarray(np.moveaxis(out, -1, 0))
 
+    def albedo_at(self, faces: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
+        """(n, 3) uint8 sRGB albedo at points given by triangle and Embree barycentrics (u, v), as `albedo`
+        computes it for pixels; for the bounces of indirect light."""
+        if self.records is None:
+            if self.scene.face_uvs is not None and self.scene.face_material is not None and self.scene.textures:
+                return self._texture_albedo(faces, barycentric)
+            return np.full((len(faces), 3), DEFAULT_GREY, np.uint8)
+        corners = self.records[faces, :9].reshape(-1, 3, 3).astype(np.float32)
+        if not self.flat:
+            u, v = barycentric[:, :1].astype(np.float32), barycentric[:, 1:].astype(np.float32)
+            colour = corners[:, 0] + np.float32(0.5) + u * (corners[:, 1] - corners[:, 0]) + v * (corners[:, 2] - corners[:, 0])
+            return np.clip(colour, 0, 255).astype(np.uint8)
+        return corners[:, 0].astype(np.uint8)
+
     def _texture_albedo(self, faces: np.ndarray, bary: np.ndarray) -> np.ndarray:
         uvs = self.scene.face_uvs[faces].astype(np.float32)  # type: ignore[index]
         w0 = (1.0 - bary[:, 0] - bary[:, 1])[:, None]
@@ -152,8 +170,10 @@ def interleave(planes: np.ndarray) -> np.ndarray:
 class Shader:
     """Turns albedo and hits into the 8-bit RGB frame for one illumination and a job's exposure."""
 
-    def __init__(self, illumination: Illumination, exposure: float, ray_lengths: np.ndarray):
-        """`ray_lengths`: (H, W) norms of the camera-frame ray directions (x, y, 1), fixed per camera."""
+    def __init__(self, illumination: Illumination, exposure: float, ray_lengths: np.ndarray, first_row: int = 0):
+        """`ray_lengths`: (H, W) norms of the camera-frame ray directions (x, y, 1), fixed per camera;
+        `first_row`: the frame row of their first row (a shader of a band of rows)."""
+        self.first_row = first_row
         self.illumination = illumination
         self.exposure = exposure
         self.ray_lengths = ray_lengths.astype(np.float32)
@@ -168,50 +188,74 @@ class Shader:
         self._decode = srgb_to_linear(np.arange(256) / 255.0)
         self._encode = np.rint(255.0 * linear_to_srgb(np.arange(self._encode_steps + 1) / self._encode_steps))
         self._encode = self._encode.astype(np.uint8)
+        self.tables = reflection_tables(illumination)
+        # Indirect irradiance (W/m^2) -> the same units as the direct term: exposure * steps / pi.
+        self.indirect_scale = np.float32(exposure * self._encode_steps / math.pi)
+        self._material = (self.tables.diffuse, self.tables.specular, self.tables.albedo)
 
-    def shade(self, albedo: np.ndarray, hits: RayHits) -> np.ndarray:
+    def shade(self, albedo: np.ndarray, hits: RayHits, indirect: np.ndarray | None = None) -> np.ndarray:
         """(H, W, 3) uint8 frame from (3, H, W) albedo planes. Ambient is the albedo; spot applies the
-        model of schemas/render.md."""
+        model of schemas/render.md, plus `indirect` irradiance W/m^2 of the whole frame when given, one
+        value per indirect.INDIRECT_BLOCK x INDIRECT_BLOCK pixels (IndirectGather.irradiance)."""
         if self.illumination.kind == "ambient":
             return interleave(albedo)
-        return _shade(hits, planes=albedo, scale_steps=self._spot_scale_steps, decode=self._decode, encode=self._encode)
+        return _shade(hits, planes=albedo, scale_steps=self._spot_scale_steps, decode=self._decode, encode=self._encode,
+                      material=self._lit_material(), indirect=indirect, indirect_scale=self.indirect_scale,
+                      first_row=self.first_row)
 
-    def shade_surfaces(self, colors: SurfaceColors, hits: RayHits, out: np.ndarray | None = None) -> np.ndarray:
-        """The same frame as `shade(colors.planes(hits), hits)` (into `out` when given); for vertex-coloured
-        scenes in one pass over the pixels (albedo, light and encoding per pixel: 2.4x faster than
-        whole-array passes)."""
+    def shade_surfaces(self, colors: SurfaceColors, hits: RayHits, out: np.ndarray | None = None,
+                       indirect: np.ndarray | None = None, indirect_scale: float = 1.0, first_row: int = 0) -> np.ndarray:
+        """The same frame as `shade(colors.planes(hits), hits, indirect)` (into `out` when given); for
+        vertex-coloured scenes in one pass over the pixels (albedo, light and encoding per pixel: 2.4x faster
+        than whole-array passes)."""
         if colors.records is None:
-            frame = self.shade(colors.planes(hits), hits)
+            frame = self.shade(colors.planes(hits), hits, indirect)
             if out is not None:
                 out[...] = frame
             return frame if out is None else out
         spot = self.illumination.kind == "spot"
         return _shade(hits, records=colors.records, interpolate=not colors.flat, out=out,
-                      scale_steps=self._spot_scale_steps if spot else None, decode=self._decode, encode=self._encode)
+                      scale_steps=self._spot_scale_steps if spot else None, decode=self._decode, encode=self._encode,
+                      material=self._lit_material() if spot else None, indirect=indirect if spot else None,
+                      indirect_scale=self.indirect_scale, first_row=self.first_row)
+
+    def _lit_material(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The principled tables, or None for a diffuse surface (its frames keep today's exact arithmetic)."""
+        return self._material if self.illumination.material == "principled" else None
+
 
 
 # Placeholders of the right types for the inputs a call of the shading loop does not use, so that it is
 # compiled once per process (the arrays' types, not their sizes, pick the compiled version).
 _NO_RECORDS, _NO_PLANES = np.zeros((1, 16), np.uint8), np.zeros((3, 1, 1), np.uint8)
 _NO_SCALE, _NO_DECODE, _NO_ENCODE = np.zeros((1, 1), np.float32), np.zeros(1, np.float32), np.zeros(1, np.uint8)
+_NO_TABLE, _NO_INDIRECT = np.zeros(1, np.float32), np.zeros((1, 1, 3), np.float32)
 
 
 def _shade(hits: RayHits, records: np.ndarray | None = None, planes: np.ndarray | None = None,
            interpolate: bool = False, scale_steps: np.ndarray | None = None, decode: np.ndarray = _NO_DECODE,
-           encode: np.ndarray = _NO_ENCODE, out: np.ndarray | None = None) -> np.ndarray:
+           encode: np.ndarray = _NO_ENCODE, out: np.ndarray | None = None,
+           material: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+           indirect: np.ndarray | None = None, indirect_scale: float = 1.0, first_row: int = 0) -> np.ndarray:
     """(H, W, 3) uint8 frame (into `out` when given): albedo from per-face `records` or from `planes`, lit
-    by the spot model when `scale_steps` is given (with `decode` and `encode`), else the albedo itself."""
+    by the spot model when `scale_steps` is given (with `decode` and `encode`), else the albedo itself;
+    `material` = the principled (diffuse, specular, albedo) tables; `indirect` irradiance of the whole frame
+    per INDIRECT_BLOCK x INDIRECT_BLOCK pixels, times `indirect_scale` in encoder steps; `first_row`: frame row of hits' row 0."""
     out = np.empty((*hits.depth.shape, 3), np.uint8) if out is None else out
+    diffuse, specular, albedo = material if material is not None else (_NO_TABLE, _NO_TABLE, _NO_TABLE)
     _shade_pixels(_NO_RECORDS if records is None else records, _NO_PLANES if planes is None else planes,
                   records is not None, interpolate, scale_steps is not None, hits.face, hits.barycentric,
                   hits.normal, hits.direction, hits.depth, _NO_SCALE if scale_steps is None else scale_steps,
-                  decode, encode, out)
+                  decode, encode, out, material is not None, diffuse, specular, albedo,
+                  indirect is not None, _NO_INDIRECT if indirect is None else indirect, np.float32(indirect_scale),
+                  first_row, INDIRECT_BLOCK)
     return out
 
 
 @numba.njit(nogil=True)
 def _shade_pixels(records, planes, from_records, interpolate, spot, face, barycentric, normal, direction, depth,
-                  scale_steps, decode, encode, out):  # pragma: no cover (compiled)
+                  scale_steps, decode, encode, out, principled, diffuse_table, specular_table, albedo_table,
+                  lit_indirectly, indirect, indirect_scale, first_row, block):  # pragma: no cover (compiled)
     """Every pixel in float32 with a fixed order of operations (no fast-math), so runs are bit-identical:
 
     albedo  a = c0 + 0.5 + u (c1 - c0) + v (c2 - c0), clipped to [0, 255], truncated (the + 0.5 rounds)
@@ -221,21 +265,33 @@ def _shade_pixels(records, planes, from_records, interpolate, spot, face, baryce
             z = inf and n = 0, so it is black. The steps are a power of two: folding them in rounds
             exactly like scaling the clipped linear value afterwards.
             out = encode[trunc(clip(decode[a] s, 0, steps) + 0.5)]
+    principled / indirect (material.py; m = table entry of mu = |n . ray| / |ray|, i = indirect irradiance
+            of the pixel's block times indirect_scale: the same units as s):
+            out = encode[trunc(clip(decode[a] (s + i) diffuse[m] + s specular[m] + i albedo[m], 0, steps) + 0.5)]
+            (a diffuse surface: diffuse = 1, specular = albedo = 0)
     """
     height, width = face.shape
     steps = np.float32(len(encode) - 1)
     half, low, high = np.float32(0.5), np.float32(0.0), np.float32(255.0)
+    last_entry = np.float32(len(diffuse_table) - 1)
     for row in range(height):
         for column in range(width):
             f = face[row, column]
             light = np.float32(0.0)
+            base, gloss, bounced = np.float32(1.0), np.float32(0.0), np.float32(0.0)
             if spot:
-                light = normal[row, column, 0] * direction[row, column, 0]
-                light += normal[row, column, 1] * direction[row, column, 1]
-                light += normal[row, column, 2] * direction[row, column, 2]
-                light = abs(light) * scale_steps[row, column]
+                facing = normal[row, column, 0] * direction[row, column, 0]
+                facing += normal[row, column, 1] * direction[row, column, 1]
+                facing += normal[row, column, 2] * direction[row, column, 2]
+                light = abs(facing) * scale_steps[row, column]
                 z = depth[row, column]
                 light /= z * z
+                if principled:
+                    length = direction[row, column, 0] * direction[row, column, 0]
+                    length += direction[row, column, 1] * direction[row, column, 1]
+                    length += direction[row, column, 2] * direction[row, column, 2]
+                    entry = np.int32(min(abs(facing) / np.sqrt(length), np.float32(1.0)) * last_entry + half)
+                    base, gloss, bounced = diffuse_table[entry], specular_table[entry], albedo_table[entry]
             u, v = barycentric[row, column, 0], barycentric[row, column, 1]
             for channel in range(3):
                 if not from_records:
@@ -248,7 +304,13 @@ def _shade_pixels(records, planes, from_records, interpolate, spot, face, baryce
                     albedo = np.uint8(min(max(colour, low), high))
                 else:
                     albedo = records[f, channel]
-                if spot:
+                if spot and (principled or lit_indirectly):
+                    received = np.float32(0.0)
+                    if lit_indirectly:
+                        received = indirect[(first_row + row) // block, column // block, channel] * indirect_scale
+                    linear = decode[albedo] * (light + received) * base + light * gloss + received * bounced
+                    out[row, column, channel] = encode[np.int32(min(max(linear, low), steps) + half)]
+                elif spot:
                     linear = min(max(decode[albedo] * light, low), steps) + half
                     out[row, column, channel] = encode[np.int32(linear)]
                 else:

@@ -111,6 +111,11 @@ class SceneRaycaster:
         # (fresh multi-megabyte arrays cost page faults every frame).
         self._setup: tuple[Camera, np.ndarray, np.ndarray, RayHits] | None = None
 
+    @property
+    def mesh(self) -> EmbreeMesh:
+        """The scene's BVH, for rays other than the camera's (indirect light)."""
+        return self._bvh
+
     def cast(self, camera: Camera, camera_to_world: np.ndarray) -> RayHits:
         """Trace one frame from `camera_to_world` (4x4, OpenCV camera axes).
 

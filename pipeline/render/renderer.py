@@ -13,6 +13,7 @@ import numpy as np
 
 from pipeline.config import Embodiment
 from pipeline.lazy_import import lazy_module
+from pipeline.render.indirect import IndirectGather
 from pipeline.render.lighting import Shader, SurfaceColors
 from pipeline.render.raycaster import Camera, RayHits, SceneRaycaster, row_bands, thread_pool
 from pipeline.render.sensors import StructuredLightModel, depth_to_millimetres, sensor_model
@@ -66,10 +67,11 @@ class VideoRenderer:
         scene: the labelled mesh; `raycaster` may be passed to share one BVH between videos of a scene.
         embodiment: camera, clip range, depth sensor model and light.
         exposure: the job's exposure (lighting.job_exposure); unused for ambient light.
+        seed: the job's seed; fixes the pattern of indirect light (the same for every frame and video).
     """
 
     def __init__(self, scene: Scene, embodiment: Embodiment, exposure: float, raycaster: SceneRaycaster | None = None,
-                 colors: SurfaceColors | None = None, labels: SceneLabels | None = None):
+                 colors: SurfaceColors | None = None, labels: SceneLabels | None = None, seed: int = 0):
         self.scene = scene
         self.embodiment = embodiment
         self.camera = camera_of(embodiment)
@@ -79,10 +81,13 @@ class VideoRenderer:
         self.ray_lengths = np.linalg.norm(self.camera.directions(), axis=-1).astype(np.float32)
         self.shader = Shader(embodiment.illumination, exposure, self.ray_lengths)
         self.sensor: StructuredLightModel | None = sensor_model(embodiment.sensor.model)
+        light = embodiment.illumination
+        self.indirect = (IndirectGather(self.raycaster.mesh, self.colors, light, seed, self.raycaster.threads)
+                         if light.kind == "spot" and light.indirect.bounces > 0 else None)
         # Frames are shaded in row bands: a band's temporaries stay in the core's cache (4 bands of a 640x480
         # frame: 12 % faster than whole frames), and with several cast threads the bands run in parallel
         # (numpy releases the GIL: 2 threads take ~60 % of the time). A 1-CPU worker runs them inline.
-        self._bands = [(rows, Shader(embodiment.illumination, exposure, self.ray_lengths[rows]))
+        self._bands = [(rows, Shader(embodiment.illumination, exposure, self.ray_lengths[rows], rows.start))
                        for rows in row_bands(self.camera.height, max(MIN_BANDS, self.raycaster.threads))]
 
     def trace(self, camera_to_world: np.ndarray) -> RayHits:
@@ -101,20 +106,27 @@ class VideoRenderer:
 
     def render(self, camera_to_world: np.ndarray, rng: np.random.Generator | None = None) -> RenderedFrame:
         """All buffers of one frame. `rng` feeds the sensor model (required unless the sensor is ideal)."""
-        return self.buffers(self.trace(camera_to_world), rng)
+        return self.buffers(self.trace(camera_to_world), rng, camera_to_world)
 
-    def buffers(self, hits: RayHits, rng: np.random.Generator | None = None) -> RenderedFrame:
-        """RGB, depth (mm) and panoptic ids of traced hits (split from `render` so benchmarks can time it)."""
+    def buffers(self, hits: RayHits, rng: np.random.Generator | None = None,
+                camera_to_world: np.ndarray | None = None) -> RenderedFrame:
+        """RGB, depth (mm) and panoptic ids of traced hits (split from `render` so benchmarks can time it).
+        `camera_to_world` (the pose of `hits`) is needed when the light has indirect bounces."""
         sensor = self.embodiment.sensor
         shape = hits.depth.shape
         frame = RenderedFrame(rgb=np.empty((*shape, 3), np.uint8), depth=np.empty(shape, np.uint16),
                               panoptic=np.empty(shape, np.uint32), dense=np.empty(shape, np.int32))
+        indirect = None
+        if self.indirect is not None:
+            if camera_to_world is None:
+                raise ValueError("indirect light traces from the spot: pass the pose of the hits (camera_to_world)")
+            indirect = self.indirect.irradiance(hits, camera_to_world)
         bands = range(len(self._bands))
         if self.raycaster.threads == 1:
             for band in bands:
-                self._fill_band(hits, band, frame)
+                self._fill_band(hits, band, frame, indirect)
         else:
-            list(thread_pool(self.raycaster.threads).map(lambda band: self._fill_band(hits, band, frame), bands))
+            list(thread_pool(self.raycaster.threads).map(lambda band: self._fill_band(hits, band, frame, indirect), bands))
         if self.sensor is None:
             return frame
         if rng is None:
@@ -124,12 +136,12 @@ class VideoRenderer:
         frame.depth_clean, frame.depth = frame.depth, depth_to_millimetres(noisy, sensor.near, sensor.far)
         return frame
 
-    def _fill_band(self, hits: RayHits, band: int, frame: RenderedFrame) -> None:
+    def _fill_band(self, hits: RayHits, band: int, frame: RenderedFrame, indirect: np.ndarray | None = None) -> None:
         """Write the RGB, clean depth (mm), panoptic ids and dense labels of the rows of one band into `frame`."""
         rows, shader = self._bands[band]
         hits = hits.rows(rows)
         sensor = self.embodiment.sensor
-        shader.shade_surfaces(self.colors, hits, out=frame.rgb[rows])
+        shader.shade_surfaces(self.colors, hits, out=frame.rgb[rows], indirect=indirect)
         frame.depth[rows] = depth_to_millimetres(hits.depth, sensor.near, sensor.far)
         # A miss (face F) picks the trailing 0 (void) of both tables; "clip" writes straight into `out`.
         np.take(self.labels.object_ids, hits.face, out=frame.panoptic[rows], mode="clip")

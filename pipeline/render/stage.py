@@ -89,7 +89,7 @@ class RgbdRenderer(Stage):
         embodiment = self.job.embodiment(trajectory["embodiment"])
         poses = read_poses(context.run, trajectory)
         scene = self.load_scene(context.run, trajectory["scene_id"])
-        renderer = _WORKER_CACHE.renderer(scene, embodiment, self.exposure)
+        renderer = _WORKER_CACHE.renderer(scene, embodiment, self.exposure, self.job.seed)
         relative = f"videos/{embodiment.name}/{trajectory['video_name']}.zarr"
         store = context.staged_path(relative)
         video = render_video(renderer, poses, store, trajectory, self.job.render.frames_per_shard, context)
@@ -133,14 +133,14 @@ class _WorkerCache:
     def clear(self) -> None:
         self.key = self.scene = self.parts = None
 
-    def renderer(self, scene: Scene, embodiment: Embodiment, exposure: float) -> VideoRenderer:
+    def renderer(self, scene: Scene, embodiment: Embodiment, exposure: float, seed: int = 0) -> VideoRenderer:
         """A renderer for `scene`, reusing its BVH and lookup tables when the scene is the cached one."""
         if self.parts is None or self.parts[0] is not scene:
             self.parts = None
             self.parts = (scene, SceneRaycaster(scene), SurfaceColors(scene), SceneLabels(scene))
             limit_worker_threads(self.parts[1].threads)
         _, raycaster, colors, labels = self.parts
-        return VideoRenderer(scene, embodiment, exposure, raycaster=raycaster, colors=colors, labels=labels)
+        return VideoRenderer(scene, embodiment, exposure, raycaster=raycaster, colors=colors, labels=labels, seed=seed)
 
 
 _WORKER_CACHE = _WorkerCache()

@@ -21,6 +21,9 @@ def test_mvpd_presets_load_with_mvpd_camera_and_lights():
         spot = load_embodiment(PRESETS / f"mvpd_spot{watts}.yaml")
         assert spot.illumination.kind == "spot" and spot.illumination.power == watts
         assert (spot.illumination.cone, spot.illumination.blend) == (180.0, 1.0)
+        # The authors' Cycles material (render_config.ini) and light paths (16 bounces).
+        light = spot.illumination
+        assert (light.material, light.specular, light.roughness, light.indirect.bounces) == ("principled", 1.0, 0.5, 16)
         assert spot.sensor == mvpd.sensor and spot.body == mvpd.body and spot.placements == mvpd.placements
 
 

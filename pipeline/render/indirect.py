@@ -1,0 +1,420 @@
+"""Indirect light of the spot at the camera: virtual point lights, gathered with shadow rays (instant radiosity).
+
+Beside the direct term (lighting.py), not inside it, as Mitsuba keeps `direct` and `path` apart: this
+module returns the irradiance E_indirect (W/m^2, RGB) that bounced light brings to each pixel's surface;
+the shader reflects it (material.py). Per frame:
+
+1. Virtual lights. Rays leave the spot (the camera centre) in a stratified pattern distributed like the
+   spot's intensity I s(theta) over its cone, each carrying an equal share of the spot's flux. Where a
+   ray lands, the surface reflects its share (albedo and material) as a Lambertian virtual light; for
+   each further bounce the light sends its flux on along a cosine-distributed direction, and where that
+   lands a new virtual light re-emits what that surface reflects. Camera pixels are where the spot's light
+   first lands, so the first-bounce lights are spread over the visible surfaces and those beside, below
+   and above the view that the 180-degree cone also lights.
+2. Gather. Every `gather_stride` pixels a gather point sums E = sum_j Phi_j cos_j cos_x / (pi max(r^2,
+   clamp^2)) over the virtual lights it sees (one shadow ray each). Interleaved sampling (Keller and
+   Heidrich 2001): the lights are split into interleave^2 stratified subsets and neighbouring gather
+   points take different subsets, so each point pays for 1 / interleave^2 of the shadow rays.
+3. Filter. Each gather point averages the block of interleave x interleave points around it (every
+   subset once), weighted by how alike the surfaces are (normal and plane distance); every pixel then takes
+   the bilinear mix of its four nearest gather points under the same geometric weights.
+
+The pattern of directions is drawn once from the job's seed: a still camera gives the same frame every
+time (no flicker), and the same job gives the same bytes. Virtual lights clamp the 1/r^2 of near pairs
+(`clamp_distance`), which loses a little light in tight corners.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numba
+import numpy as np
+
+from pipeline.config import Illumination
+from pipeline.render.embree import EmbreeMesh
+from pipeline.render.lighting import (INDIRECT_BLOCK, SurfaceColors, cone_falloff, radiant_intensity,
+                                      srgb_to_linear)
+from pipeline.render.material import TABLE_SIZE, reflection_tables
+from pipeline.render.raycaster import RayHits, row_bands, thread_pool
+
+# Offset of shadow and bounce rays off their surface, relative to the distance from the camera (float32
+# hits are accurate to ~1e-7 of that distance).
+SURFACE_OFFSET = 1e-4
+# Geometric weights of the filter: cos^8 of the angle between normals (fixed in `_similarity`) times
+# 1 - (plane distance / tolerance)^2, the tolerance being this fraction of the depth.
+PLANE_TOLERANCE = 0.05
+# Ratio of successive bounces used for the untraced ones at most (a white closed room would give 1).
+MAX_BOUNCE_RATIO = 0.95
+_SEED_STREAM = 0x1D1EC7  # separates the pattern's draws from every other use of the job seed
+
+
+class VirtualLights:
+    """The virtual point lights of one frame: positions (n, 3), normals (n, 3) facing the side lit,
+    outgoing flux (n, 3) watts per channel, and the interleaving group of each (n,)."""
+
+    def __init__(self, positions: np.ndarray, normals: np.ndarray, flux: np.ndarray, groups: np.ndarray):
+        self.positions, self.normals, self.flux, self.groups = positions, normals, flux, groups
+
+
+class IndirectGather:
+    """Indirect irradiance of one spot light at every pixel of a camera, in one scene.
+
+    Args:
+        mesh: the scene's BVH (shared with the camera rays).
+        colors: the scene's albedo lookup.
+        illumination: the spot (its `indirect` settings; `bounces` must be > 0).
+        seed: the job's seed: it fixes the pattern of light directions for every frame.
+        threads: threads per frame (bands of gather rows).
+    """
+
+    def __init__(self, mesh: EmbreeMesh, colors: SurfaceColors, illumination: Illumination, seed: int, threads: int = 1):
+        self.mesh, self.colors, self.illumination = mesh, colors, illumination
+        self.settings = illumination.indirect
+        self.threads = max(1, threads)
+        tables = reflection_tables(illumination)
+        self._diffuse, self._albedo = tables.diffuse, tables.albedo
+        rng = np.random.default_rng([seed, _SEED_STREAM])
+        self.directions, self.ray_flux, self.ray_groups = spot_pattern(illumination, self.settings.virtual_lights,
+                                                                       self.settings.interleave, rng)
+        # One pair of uniform numbers per light and further bounce (cosine-distributed directions).
+        self.traced = min(self.settings.bounces, self.settings.traced_bounces)
+        self._bounce_numbers = rng.random((max(0, self.traced - 1), len(self.directions), 2))
+
+    # ------------------------------------------------------------------------------ lights
+    def virtual_lights(self, camera_to_world: np.ndarray) -> VirtualLights:
+        """Trace the pattern from the spot at `camera_to_world` through every bounce."""
+        rotation = np.asarray(camera_to_world, np.float64)[:3, :3]
+        origins = np.repeat(np.asarray(camera_to_world, np.float32)[None, :3, 3], len(self.directions), 0)
+        directions = (self.directions @ rotation.T).astype(np.float32)
+        flux = np.repeat(self.ray_flux[:, None], 3, 1).astype(np.float32)
+        groups, pattern_index = self.ray_groups, np.arange(len(self.directions))
+        camera = np.asarray(camera_to_world, np.float64)[:3, 3]
+        found: list[tuple[np.ndarray, ...]] = []
+        emitted = [np.full(3, self.ray_flux.sum())]  # RGB flux leaving the spot, then each bounce's lights
+        for bounce in range(self.traced):
+            positions, normals, reflected, keep = self._land(origins, directions, flux)
+            positions, normals, flux = positions[keep], normals[keep], reflected[keep]
+            groups, pattern_index = groups[keep], pattern_index[keep]
+            found.append((positions, normals, flux, groups))
+            emitted.append(flux.sum(axis=0, dtype=np.float64))
+            if bounce + 1 == self.traced:
+                break
+            # Each light's path keeps its own numbers of the pattern, whichever other paths were lost.
+            directions = cosine_directions(normals, self._bounce_numbers[bounce][pattern_index]).astype(np.float32)
+            lift = SURFACE_OFFSET * (1.0 + np.linalg.norm(positions - camera, axis=1, keepdims=True))
+            origins = (positions + normals * lift).astype(np.float32)
+        untraced = self.settings.bounces - self.traced
+        if untraced > 0:
+            # Later bounces look like the last traced one, each r times as strong per channel (r < 1: light is
+            # absorbed; per channel, because each bounce saturates the colour of the light further).
+            ratio = np.minimum(emitted[-1] / np.maximum(emitted[-2], 1e-30), MAX_BOUNCE_RATIO)
+            series = sum(ratio**k for k in range(untraced + 1)).astype(np.float32)
+            found[-1] = (*found[-1][:2], found[-1][2] * series, found[-1][3])
+        return VirtualLights(*(np.ascontiguousarray(np.concatenate([part[k] for part in found])) for k in range(4)))
+
+    def _land(self, origins: np.ndarray, directions: np.ndarray, flux: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Where rays land: positions, normals facing the ray, the flux the surface reflects, and which hit."""
+        count = len(origins)
+        t, face = np.empty(count, np.float32), np.empty(count, np.int64)
+        barycentric, normal = np.empty((count, 2), np.float32), np.empty((count, 3), np.float32)
+        self.mesh.intersect(np.ascontiguousarray(origins), np.ascontiguousarray(directions), 0.0,
+                            (t, face, barycentric, normal))
+        keep = face >= 0
+        positions = origins + directions * np.where(keep, t, 0.0)[:, None]
+        facing = np.sum(normal * directions, axis=1)
+        normal *= np.where(facing > 0, -1.0, 1.0)[:, None].astype(np.float32)  # the side the light came from
+        mu = np.abs(facing) / np.maximum(np.linalg.norm(directions, axis=1), 1e-12)
+        index = np.rint(np.clip(mu, 0.0, 1.0) * (TABLE_SIZE - 1)).astype(np.int64)
+        rho = np.zeros((count, 3), np.float32)
+        rho[keep] = srgb_to_linear(self.colors.albedo_at(face[keep], barycentric[keep]) / 255.0)
+        # What the surface sends back out of the flux that landed: the diffuse base and the lobe's albedo.
+        reflectance = rho * self._diffuse[index][:, None] + self._albedo[index][:, None]
+        return positions.astype(np.float32), normal, (flux * reflectance).astype(np.float32), keep
+
+    # ------------------------------------------------------------------------------ gather
+    def irradiance_at(self, points: np.ndarray, normals: np.ndarray, camera_to_world: np.ndarray) -> np.ndarray:
+        """(n, 3) indirect irradiance (W/m^2) at surface points (n, 3) with unit normals (n, 3) facing the
+        side to light, from every virtual light of the spot at `camera_to_world` (no interleaving, no filter):
+        the estimator itself, for checks against analytic cases."""
+        lights = self.virtual_lights(camera_to_world)
+        starts = np.array([0, len(lights.positions)], np.int64)
+        depth = np.ones((1, len(points)), np.float32)
+        shadow = _shadow_rays(np.asarray(points, np.float32)[None], np.asarray(normals, np.float32)[None], depth, 0, 1,
+                              lights.positions, lights.normals, lights.flux, starts,
+                              np.float32(self.settings.clamp_distance ** 2), np.float32(SURFACE_OFFSET))
+        cells, contributions, ray_origins, ray_directions = shadow
+        blocked = np.empty(len(cells), np.bool_)
+        self.mesh.occluded(ray_origins, ray_directions, np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
+        out = np.zeros((1, len(points), 3), np.float32)
+        _accumulate(cells, contributions, blocked, out)
+        return out[0]
+
+    def irradiance(self, hits: RayHits, camera_to_world: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """(ceil(H / INDIRECT_BLOCK), ceil(W / INDIRECT_BLOCK), 3) float32 indirect irradiance (W/m^2): one value per INDIRECT_BLOCK x INDIRECT_BLOCK
+        pixels, at the surface of the block's first pixel; 0 where that pixel hit nothing."""
+        lights = self.virtual_lights(camera_to_world)
+        order = np.argsort(lights.groups, kind="stable")
+        group_count = self.settings.interleave ** 2
+        starts = np.searchsorted(lights.groups[order], np.arange(group_count + 1)).astype(np.int64)
+        positions, normals = lights.positions[order], lights.normals[order]
+        flux = lights.flux[order] * np.float32(group_count)  # each gather point sees one subset
+        height, width = hits.depth.shape
+        stride, interleave = self.settings.gather_stride, self.settings.interleave
+        rows, columns = -(-height // stride), -(-width // stride)
+        origin = np.asarray(camera_to_world, np.float32)[:3, 3].copy()
+        points = np.zeros((rows, columns, 3), np.float32)
+        point_normals = np.zeros((rows, columns, 3), np.float32)
+        point_depth = np.full((rows, columns), np.inf, np.float32)
+        _gather_points(hits.depth, hits.normal, hits.direction, origin, stride, points, point_normals, point_depth)
+        gathered = np.zeros((rows, columns, 3), np.float32)
+        clamp2 = np.float32(self.settings.clamp_distance ** 2)
+
+        def gather(band: slice) -> None:
+            shadow = _shadow_rays(points[band], point_normals[band], point_depth[band], band.start, interleave,
+                                  positions, normals, flux, starts, clamp2, np.float32(SURFACE_OFFSET))
+            cells, contributions, ray_origins, ray_directions = shadow
+            blocked = np.empty(len(cells), np.bool_)
+            self.mesh.occluded(ray_origins, ray_directions, np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
+            _accumulate(cells, contributions, blocked, gathered[band])
+
+        self._run_bands(gather, rows)
+        combined = np.zeros_like(gathered)
+        _interleave_filter(gathered, points, point_normals, point_depth, interleave, combined)
+        out = np.empty((-(-height // INDIRECT_BLOCK), -(-width // INDIRECT_BLOCK), 3), np.float32) if out is None else out
+
+        def upsample(band: slice) -> None:
+            _upsample(combined, points, point_normals, point_depth, hits.depth, hits.direction, hits.normal, origin,
+                      stride, band.start, out[band])
+
+        self._run_bands(upsample, len(out))
+        return out
+
+    def _run_bands(self, work: Callable[[slice], None], rows: int) -> None:
+        """`work` on bands of `rows` rows, on this gather's threads (inline with one thread)."""
+        bands = row_bands(rows, self.threads)
+        if len(bands) == 1:
+            work(bands[0])
+        else:
+            list(thread_pool(self.threads).map(work, bands))
+
+
+def spot_pattern(illumination: Illumination, count: int, interleave: int, rng: np.random.Generator
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Camera-frame directions (n, 3), flux per ray (n,) watts and interleaving group (n,) of the spot's rays.
+
+    Stratified on a k x k grid (k = a multiple of `interleave`, k^2 >= count) over (u1, u2): u1 picks
+    cos(theta) by the inverse of the cone's cumulative intensity, u2 the azimuth. Group of stratum (a, b):
+    (a mod interleave) * interleave + b mod interleave, so every group spans the whole cone.
+    """
+    k = interleave * max(1, math.ceil(math.sqrt(count) / interleave))
+    a, b = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    u1 = (a.ravel() + rng.random(k * k)) / k
+    u2 = (b.ravel() + rng.random(k * k)) / k
+    cos_edge = math.cos(math.radians(illumination.cone) / 2.0)
+    grid = np.linspace(cos_edge, 1.0, 4097)
+    falloff = cone_falloff(grid, illumination).astype(np.float64)
+    cumulative = np.concatenate([[0.0], np.cumsum((falloff[1:] + falloff[:-1]) / 2 * np.diff(grid))])
+    total_flux = 2.0 * math.pi * radiant_intensity(illumination) * cumulative[-1]
+    cos_theta = np.interp(u1 * cumulative[-1], cumulative, grid)
+    sin_theta = np.sqrt(np.maximum(0.0, 1.0 - cos_theta**2))
+    phi = 2.0 * math.pi * u2
+    directions = np.stack([sin_theta * np.cos(phi), sin_theta * np.sin(phi), cos_theta], 1)
+    groups = ((a.ravel() % interleave) * interleave + b.ravel() % interleave).astype(np.int64)
+    return directions, np.full(k * k, total_flux / (k * k)), groups
+
+
+def cosine_directions(normals: np.ndarray, numbers: np.ndarray) -> np.ndarray:
+    """Unit directions (n, 3) distributed as cos(theta) about `normals`, from uniform `numbers` (n, 2)."""
+    radius, phi = np.sqrt(numbers[:, 0]), 2.0 * math.pi * numbers[:, 1]
+    local = np.stack([radius * np.cos(phi), radius * np.sin(phi), np.sqrt(np.maximum(0.0, 1.0 - numbers[:, 0]))], 1)
+    normals = normals.astype(np.float64)
+    helper = np.where(np.abs(normals[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    tangent = np.cross(helper, normals)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    bitangent = np.cross(normals, tangent)
+    return local[:, :1] * tangent + local[:, 1:2] * bitangent + local[:, 2:] * normals
+
+
+@numba.njit(nogil=True, cache=True)
+def _gather_points(depth, normal, direction, origin, stride, points, point_normals, point_depth):  # pragma: no cover
+    """The surface under the centre pixel of each stride x stride cell: position, normal facing the camera, depth."""
+    height, width = depth.shape
+    for i in range(points.shape[0]):
+        row = min(i * stride + stride // 2, height - 1)
+        for k in range(points.shape[1]):
+            column = min(k * stride + stride // 2, width - 1)
+            z = depth[row, column]
+            if not np.isfinite(z):
+                continue
+            facing = np.float32(0.0)
+            for axis in range(3):
+                points[i, k, axis] = origin[axis] + z * direction[row, column, axis]
+                facing += normal[row, column, axis] * direction[row, column, axis]
+            sign = np.float32(-1.0) if facing > 0 else np.float32(1.0)
+            for axis in range(3):
+                point_normals[i, k, axis] = sign * normal[row, column, axis]
+            point_depth[i, k] = z
+
+
+@numba.njit(nogil=True, cache=True)
+def _shadow_rays(points, point_normals, point_depth, row_offset, interleave, positions, normals, flux, starts,
+                 clamp2, offset):  # pragma: no cover (compiled)
+    """Every (gather point, light of its subset) pair that faces each other: the cell, the unshadowed
+    irradiance (RGB) and the shadow ray (origin off the surface, direction to the light: t in [0, 1))."""
+    rows, columns = point_depth.shape
+    largest = 0
+    for group in range(len(starts) - 1):
+        largest = max(largest, starts[group + 1] - starts[group])
+    most = rows * columns * largest
+    cells = np.empty(most, np.int64)
+    contributions = np.empty((most, 3), np.float32)
+    origins = np.empty((most, 3), np.float32)
+    directions = np.empty((most, 3), np.float32)
+    n = 0
+    inverse_pi = np.float32(1.0 / math.pi)
+    for i in range(rows):
+        for k in range(columns):
+            z = point_depth[i, k]
+            if not np.isfinite(z):
+                continue
+            group = ((i + row_offset) % interleave) * interleave + k % interleave
+            lift = offset * (np.float32(1.0) + z)
+            px = points[i, k, 0] + point_normals[i, k, 0] * lift
+            py = points[i, k, 1] + point_normals[i, k, 1] * lift
+            pz = points[i, k, 2] + point_normals[i, k, 2] * lift
+            for j in range(starts[group], starts[group + 1]):
+                dx, dy, dz = positions[j, 0] - px, positions[j, 1] - py, positions[j, 2] - pz
+                r2 = dx * dx + dy * dy + dz * dz
+                if r2 <= np.float32(0.0):
+                    continue
+                cos_x = point_normals[i, k, 0] * dx + point_normals[i, k, 1] * dy + point_normals[i, k, 2] * dz
+                cos_j = -(normals[j, 0] * dx + normals[j, 1] * dy + normals[j, 2] * dz)
+                if cos_x <= 0 or cos_j <= 0:
+                    continue
+                # cos_x cos_j / r^2 with both cosines unnormalised: divide by r^2 once more.
+                geometry = cos_x * cos_j / r2 / max(r2, clamp2) * inverse_pi
+                cells[n] = i * columns + k
+                for c in range(3):
+                    contributions[n, c] = flux[j, c] * geometry
+                origins[n, 0], origins[n, 1], origins[n, 2] = px, py, pz
+                directions[n, 0], directions[n, 1], directions[n, 2] = dx, dy, dz
+                n += 1
+    return cells[:n], contributions[:n], origins[:n], directions[:n]
+
+
+@numba.njit(nogil=True, cache=True)
+def _accumulate(cells, contributions, blocked, gathered):  # pragma: no cover (compiled)
+    """Sum the unshadowed contributions per gather point, in ray order (deterministic)."""
+    columns = gathered.shape[1]
+    for n in range(len(cells)):
+        if blocked[n]:
+            continue
+        i, k = cells[n] // columns, cells[n] % columns
+        for c in range(3):
+            gathered[i, k, c] += contributions[n, c]
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _similarity(px, py, pz, nx, ny, nz, depth, points, point_normals, point_depth, i, k):  # pragma: no cover
+    """Geometric weight in [0, 1] of gather point (i, k) for a surface at p with normal n and depth."""
+    if not np.isfinite(point_depth[i, k]):
+        return np.float32(0.0)
+    cosine = nx * point_normals[i, k, 0] + ny * point_normals[i, k, 1] + nz * point_normals[i, k, 2]
+    if cosine <= 0:
+        return np.float32(0.0)
+    plane = abs((px - points[i, k, 0]) * point_normals[i, k, 0] + (py - points[i, k, 1]) * point_normals[i, k, 1]
+                + (pz - points[i, k, 2]) * point_normals[i, k, 2])
+    tolerance = np.float32(PLANE_TOLERANCE) * depth
+    if plane >= tolerance:
+        return np.float32(0.0)
+    plane /= tolerance
+    cosine *= cosine  # cos^8 by squaring (a float power costs more than the rest of the weight)
+    cosine *= cosine
+    cosine *= cosine
+    return cosine * (np.float32(1.0) - plane * plane)
+
+
+@numba.njit(nogil=True, cache=True)
+def _interleave_filter(gathered, points, point_normals, point_depth, interleave, out):  # pragma: no cover
+    """Each gather point: the geometry-weighted mean of the interleave x interleave block around it."""
+    rows, columns = point_depth.shape
+    low = -((interleave - 1) // 2)
+    for i in range(rows):
+        for k in range(columns):
+            depth = point_depth[i, k]
+            if not np.isfinite(depth):
+                continue
+            px, py, pz = points[i, k, 0], points[i, k, 1], points[i, k, 2]
+            nx, ny, nz = point_normals[i, k, 0], point_normals[i, k, 1], point_normals[i, k, 2]
+            total = np.float32(0.0)
+            sums = np.zeros(3, np.float32)
+            # Shift the block inside the grid at its borders, so it still holds every subset once.
+            top = min(max(i + low, 0), max(rows - interleave, 0))
+            left = min(max(k + low, 0), max(columns - interleave, 0))
+            for a in range(top, min(top + interleave, rows)):
+                for b in range(left, min(left + interleave, columns)):
+                    w = _similarity(px, py, pz, nx, ny, nz, depth, points, point_normals, point_depth, a, b)
+                    total += w
+                    for c in range(3):
+                        sums[c] += w * gathered[a, b, c]
+            if total > 0:
+                for c in range(3):
+                    out[i, k, c] = sums[c] / total
+
+
+@numba.njit(nogil=True, cache=True)
+def _upsample(combined, points, point_normals, point_depth, depth, direction, normal, origin, stride, block_start,
+              out):  # pragma: no cover (compiled)
+    """Blocks of rows block_start.. (out holds those rows; block (R, C) is the surface of pixel (INDIRECT_BLOCK R,
+    INDIRECT_BLOCK C)): the bilinear mix of the four nearest gather points, each weighted by geometric similarity;
+    where none is alike (a surface smaller than a cell), the most similar of the 4 x 4 points around, or
+    black when none is on a surface facing the same way."""
+    height, width = out.shape[0], out.shape[1]
+    rows, columns = point_depth.shape
+    half = np.float32(stride // 2)
+    one = np.float32(1.0)
+    for local_row in range(height):
+        row = (block_start + local_row) * INDIRECT_BLOCK
+        gi = (np.float32(row) - half) / np.float32(stride)
+        i0 = min(max(int(np.floor(gi)), 0), rows - 1)
+        i1 = min(i0 + 1, rows - 1)
+        fi = min(max(gi - np.float32(i0), np.float32(0.0)), one)
+        for block_column in range(width):
+            column = block_column * INDIRECT_BLOCK
+            out[local_row, block_column, 0] = out[local_row, block_column, 1] = out[local_row, block_column, 2] = 0.0
+            z = depth[row, column]
+            if not np.isfinite(z):
+                continue
+            facing = (normal[row, column, 0] * direction[row, column, 0] + normal[row, column, 1] * direction[row, column, 1]
+                      + normal[row, column, 2] * direction[row, column, 2])
+            sign = np.float32(-1.0) if facing > 0 else one
+            nx, ny, nz = sign * normal[row, column, 0], sign * normal[row, column, 1], sign * normal[row, column, 2]
+            px = origin[0] + z * direction[row, column, 0]
+            py = origin[1] + z * direction[row, column, 1]
+            pz = origin[2] + z * direction[row, column, 2]
+            gk = (np.float32(column) - half) / np.float32(stride)
+            k0 = min(max(int(np.floor(gk)), 0), columns - 1)
+            k1 = min(k0 + 1, columns - 1)
+            fk = min(max(gk - np.float32(k0), np.float32(0.0)), one)
+            w00 = (one - fi) * (one - fk) * _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i0, k0)
+            w01 = (one - fi) * fk * _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i0, k1)
+            w10 = fi * (one - fk) * _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i1, k0)
+            w11 = fi * fk * _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i1, k1)
+            total = w00 + w01 + w10 + w11
+            if total > np.float32(1e-6):
+                for c in range(3):
+                    out[local_row, block_column, c] = (w00 * combined[i0, k0, c] + w01 * combined[i0, k1, c]
+                                                 + w10 * combined[i1, k0, c] + w11 * combined[i1, k1, c]) / total
+                continue
+            best, best_a, best_b = np.float32(0.0), -1, -1
+            for a in range(max(i0 - 1, 0), min(i0 + 3, rows)):
+                for b in range(max(k0 - 1, 0), min(k0 + 3, columns)):
+                    w = _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, a, b)
+                    if w > best:
+                        best, best_a, best_b = w, a, b
+            if best_a >= 0:
+                for c in range(3):
+                    out[local_row, block_column, c] = combined[best_a, best_b, c]

@@ -1,0 +1,124 @@
+"""How a surface reflects the spot light: `diffuse` (Lambertian) or `principled` (MVPd's Principled BSDF).
+
+MVPd's Cycles renders used Blender's Principled BSDF with specular 1.0 and roughness 0.5 on the scan's
+colour. As Cycles (4.x and later) evaluates it for a dielectric, that is a Lambertian base of albedo rho
+under a GGX microfacet lobe (alpha = roughness^2, height-correlated Smith masking, real dielectric Fresnel
+of the IOR whose normal-incidence reflectance is F0 = 0.08 * specular, energy kept by dividing the lobe
+by its single-scattering albedo E_ss(mu)); the base is weighted by 1 - A(mu), A being the lobe's albedo
+with Fresnel for the view direction (Cycles' albedo scaling of layered closures).
+
+The light sits at the eye, so light and view directions coincide: the half vector is the view vector,
+v.h = 1 and the Fresnel term is F0 for every pixel. What the spot adds to a pixel then depends on one
+number, mu = cos(incidence), and three tables of mu (`ReflectionTables`) serve every frame:
+
+    L_direct   = E_direct / pi * (rho * diffuse(mu) + specular(mu))
+    diffuse    = 1 - A(mu)                            (1 for `diffuse`)
+    specular   = pi * D(mu) G2(mu, mu) F0 / (4 mu^2) / E_ss(mu)     (0 for `diffuse`)
+
+Indirect light arrives from every direction; the pixel reflects it as a uniform field would be reflected,
+L_indirect = E_indirect / pi * (rho * diffuse(mu) + A(mu)) (`albedo` below, 0 for `diffuse`).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.config import Illumination
+
+TABLE_SIZE = 1024  # entries over mu in [0, 1]: the shading loop reads entry round(mu * (TABLE_SIZE - 1))
+_QUADRATURE = 192  # incoming directions per axis when integrating the lobe's albedo
+
+
+@dataclass(frozen=True)
+class ReflectionTables:
+    """float32 (TABLE_SIZE,) tables over mu = cos(incidence): weights of the diffuse base and the specular
+    lobe under the coincident spot, and the lobe's albedo (what it reflects of uniform incident light)."""
+
+    diffuse: np.ndarray
+    specular: np.ndarray
+    albedo: np.ndarray
+
+
+def reflection_tables(illumination: Illumination) -> ReflectionTables:
+    """The tables of an illumination's material (cached per material parameters)."""
+    if illumination.material == "diffuse":
+        return _diffuse_tables()
+    return _principled_tables(illumination.specular, illumination.roughness)
+
+
+@functools.cache
+def _diffuse_tables() -> ReflectionTables:
+    ones = np.ones(TABLE_SIZE, np.float32)
+    return ReflectionTables(ones, np.zeros(TABLE_SIZE, np.float32), np.zeros(TABLE_SIZE, np.float32))
+
+
+@functools.cache
+def _principled_tables(specular: float, roughness: float) -> ReflectionTables:
+    alpha = roughness * roughness
+    f0 = 0.08 * specular
+    ior = (1.0 + math.sqrt(f0)) / (1.0 - math.sqrt(f0))  # the IOR whose normal-incidence Fresnel is f0
+    mu = np.linspace(0.0, 1.0, TABLE_SIZE)
+    mu_safe = np.maximum(mu, 1e-4)
+    # Albedos vary slowly with mu: integrate at 65 points and interpolate.
+    coarse = np.linspace(1e-3, 1.0, 65)
+    single, with_fresnel = (np.interp(mu_safe, coarse, values) for values in lobe_albedos(coarse, alpha, ior))
+    lobe = ggx_distribution(mu_safe, alpha) * smith_g2(mu_safe, mu_safe, alpha) * f0 / (4.0 * mu_safe**2)
+    energy = 1.0 / single  # Cycles' multiple-scattering compensation of the lobe
+    albedo = np.clip(with_fresnel * energy, 0.0, 1.0)
+    lobe[0] = 0.0  # mu = 0: a grazing hit (or a miss, whose light is 0 anyway) shows no highlight
+    return ReflectionTables(diffuse=(1.0 - albedo).astype(np.float32),
+                            specular=(math.pi * lobe * energy).astype(np.float32),
+                            albedo=albedo.astype(np.float32))
+
+
+def ggx_distribution(cos_h: np.ndarray, alpha: float) -> np.ndarray:
+    """GGX (Trowbridge-Reitz) normal distribution D at cos(theta_h)."""
+    a2 = alpha * alpha
+    denominator = cos_h * cos_h * (a2 - 1.0) + 1.0
+    return a2 / (math.pi * denominator * denominator)
+
+
+def smith_lambda(cos: np.ndarray, alpha: float) -> np.ndarray:
+    """Smith's Lambda of GGX for a direction at cos(theta) to the normal."""
+    cos2 = np.clip(cos * cos, 1e-12, 1.0)
+    return 0.5 * (np.sqrt(1.0 + alpha * alpha * (1.0 - cos2) / cos2) - 1.0)
+
+
+def smith_g2(cos_in: np.ndarray, cos_out: np.ndarray, alpha: float) -> np.ndarray:
+    """Height-correlated masking-shadowing G2 (as Cycles uses it)."""
+    return 1.0 / (1.0 + smith_lambda(cos_in, alpha) + smith_lambda(cos_out, alpha))
+
+
+def fresnel_dielectric(cos: np.ndarray, ior: float) -> np.ndarray:
+    """Unpolarised Fresnel reflectance of a dielectric of relative index `ior` (from outside)."""
+    g2 = ior * ior - 1.0 + cos * cos
+    g = np.sqrt(np.maximum(g2, 0.0))
+    a = (g - cos) / (g + cos)
+    b = (cos * (g + cos) - 1.0) / (cos * (g - cos) + 1.0)
+    return 0.5 * a * a * (1.0 + b * b)
+
+
+def lobe_albedos(mu: np.ndarray, alpha: float, ior: float) -> tuple[np.ndarray, np.ndarray]:
+    """Directional albedos of the single-scattering GGX lobe seen from cos(theta_o) = mu: without Fresnel
+    (E_ss, for the energy compensation) and with dielectric Fresnel. Midpoint quadrature over the
+    incoming hemisphere in (cos theta_i, phi), vectorised; exact enough for 8-bit output (< 1e-3)."""
+    n = _QUADRATURE
+    cos_i = (np.arange(n) + 0.5) / n
+    phi = (np.arange(n) + 0.5) / n * 2.0 * math.pi
+    sin_i = np.sqrt(1.0 - cos_i**2)
+    wi = np.stack([np.outer(sin_i, np.cos(phi)), np.outer(sin_i, np.sin(phi)), np.repeat(cos_i[:, None], n, 1)], -1)
+    weight = (1.0 / n) * (2.0 * math.pi / n)  # d(cos theta) d(phi)
+    single, fresnel = np.empty_like(mu), np.empty_like(mu)
+    for k, cos_o in enumerate(mu):
+        wo = np.array([math.sqrt(max(0.0, 1.0 - cos_o * cos_o)), 0.0, cos_o])
+        h = wi + wo
+        h /= np.linalg.norm(h, axis=-1, keepdims=True)
+        brdf = ggx_distribution(h[..., 2], alpha) * smith_g2(wi[..., 2], cos_o, alpha) / (4.0 * cos_o)
+        # brdf * cos_i already folds the cos_i of the integrand against the 4 cos_i cos_o denominator
+        single[k] = np.sum(brdf) * weight
+        fresnel[k] = np.sum(brdf * fresnel_dielectric(np.sum(h * wo, -1), ior)) * weight
+    return single, fresnel

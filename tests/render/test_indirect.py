@@ -1,0 +1,133 @@
+"""Indirect light of the spot (virtual point lights) and the principled material: energy, zeros, determinism."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.config import Illumination, IndirectLight
+from pipeline.render.indirect import IndirectGather
+from pipeline.render.lighting import SurfaceColors, srgb_to_linear
+from pipeline.render.material import reflection_tables
+from pipeline.render.raycaster import SceneRaycaster
+from pipeline.render.renderer import VideoRenderer
+from tests.render.tiny_scenes import _Builder, embodiment, look_at, room_scene
+
+GREY = 188  # sRGB level whose linear albedo is ~0.50
+
+
+def _spot(bounces: int, material: str = "diffuse", lights: int = 256, traced: int = 2) -> Illumination:
+    return Illumination(kind="spot", power=20.0, material=material, specular=1.0, roughness=0.5,
+                        indirect=IndirectLight(bounces=bounces, traced_bounces=traced, virtual_lights=lights,
+                                               gather_stride=4, interleave=2, clamp_distance=0.1))
+
+
+def _box(size: float, colors: dict[int, tuple[int, int, int]] | None = None) -> tuple:
+    """A closed cube [-size/2, size/2]^3 seen from inside (six quads), colour per side (default uniform grey)."""
+    builder = _Builder()
+    h = size / 2
+    sides = [[[-h, -h, h], [h, -h, h], [h, h, h], [-h, h, h]], [[-h, -h, -h], [-h, h, -h], [h, h, -h], [h, -h, -h]],
+             [[-h, -h, -h], [-h, -h, h], [-h, h, h], [-h, h, -h]], [[h, -h, -h], [h, h, -h], [h, h, h], [h, -h, h]],
+             [[-h, h, -h], [-h, h, h], [h, h, h], [h, h, -h]], [[-h, -h, -h], [h, -h, -h], [h, -h, h], [-h, -h, h]]]
+    for index, corners in enumerate(sides):
+        builder.quad(np.array(corners, np.float32), index + 1, (colors or {}).get(index, (GREY, GREY, GREY)))
+    return builder.scene("box"), sides
+
+
+def _surface_samples(sides: list, count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """`count` points spread uniformly by area over the box's inside, with normals facing the centre."""
+    points, normals = [], []
+    for corners in sides:
+        a, b, _, d = (np.array(c, float) for c in corners)
+        u, v = rng.random((count // 6, 1)), rng.random((count // 6, 1))
+        p = a + u * (b - a) + v * (d - a)
+        centre = np.mean(np.array(corners, float), axis=0)
+        points.append(p)
+        normals.append(np.repeat((-centre / np.linalg.norm(centre))[None], len(p), 0))
+    return np.concatenate(points), np.concatenate(normals)
+
+
+def test_ambient_frames_equal_the_albedo_whatever_the_spot_settings() -> None:
+    scene = room_scene()
+    pose = look_at(np.array([0.0, 1.2, -1.5]), np.array([0.0, 0.5, 1.5]))
+    renderer = VideoRenderer(scene, embodiment(), exposure=1.0)
+    frame = renderer.render(pose)
+    hits = renderer.trace(pose)
+    assert np.array_equal(frame.rgb, SurfaceColors(scene).albedo(hits))
+    assert frame.rgb[hits.hit].min() < frame.rgb[hits.hit].max()  # the view shows several colours
+
+
+def test_indirect_light_is_zero_where_nothing_can_bounce() -> None:
+    # Only the far wall (in view, flat: it cannot light itself) reflects; every other side is black.
+    scene, _ = _box(4.0, colors={k: (0, 0, 0) for k in range(1, 6)} | {0: (200, 200, 200)})
+    pose = look_at(np.zeros(3), np.array([0.0, 0.0, 2.0]))
+    lit = VideoRenderer(scene, embodiment(light=_spot(bounces=3)), exposure=2.0)
+    direct = VideoRenderer(scene, embodiment(light=_spot(bounces=0)), exposure=2.0)
+    hits = lit.trace(pose)
+    assert np.all(lit.indirect.irradiance(hits, pose) == 0.0)
+    assert np.array_equal(lit.render(pose).rgb, direct.render(pose).rgb)
+    # The same box with grey sides does bounce light onto the far wall.
+    grey, _ = _box(4.0)
+    blocks = VideoRenderer(grey, embodiment(light=_spot(bounces=1)), exposure=2.0).indirect.irradiance(hits, pose)
+    assert blocks.shape == (24, 32, 3)  # one value per 2 x 2 pixels of the 64 x 48 frame
+    assert blocks.min() > 0.0
+
+
+@pytest.mark.parametrize(("bounces", "traced"), [(1, 1), (2, 2), (8, 8), (8, 2)])
+def test_closed_box_mean_radiance_approaches_direct_over_one_minus_albedo(bounces: int, traced: int) -> None:
+    """Traced bounces add rho^k each; untraced ones (8, 2) repeat the last traced one times the measured ratio."""
+    scene, sides = _box(2.0)
+    rho = float(srgb_to_linear(np.array([GREY / 255.0]))[0])
+    light = _spot(bounces=bounces, lights=64, traced=traced)
+    gather = IndirectGather(SceneRaycaster(scene).mesh, SurfaceColors(scene), light, seed=0)
+    pose = look_at(np.zeros(3), np.array([0.3, 0.2, 1.0]))
+    points, normals = _surface_samples(sides, 3000, np.random.default_rng(1))
+    indirect = gather.irradiance_at(points, normals, pose)[:, 0]
+    # Every watt the spot emits lands on the box: the mean direct irradiance over its area is flux / area.
+    direct_mean = gather.ray_flux.sum() / (6 * 2.0 * 2.0)
+    # Radiance is rho E / pi for direct and indirect alike: total / direct = 1 + rho + ... + rho^bounces.
+    ratio = 1.0 + indirect.mean() / direct_mean
+    expected = sum(rho**k for k in range(bounces + 1))
+    assert ratio == pytest.approx(expected, rel=0.04)
+    if bounces == 8:
+        assert ratio == pytest.approx(1.0 / (1.0 - rho), rel=0.04)
+
+
+def test_same_seed_same_bytes_and_a_still_camera_does_not_flicker() -> None:
+    scene = room_scene()
+    pose = look_at(np.array([0.5, 1.0, -1.5]), np.array([0.0, 0.4, 1.5]))
+    body = embodiment(light=_spot(bounces=2, material="principled"))
+    first = VideoRenderer(scene, body, exposure=2.0, seed=7)
+    frames = [first.render(pose).rgb.copy() for _ in range(2)]
+    again = VideoRenderer(scene, body, exposure=2.0, seed=7).render(pose).rgb
+    other = VideoRenderer(scene, body, exposure=2.0, seed=8).render(pose).rgb
+    assert frames[0].tobytes() == frames[1].tobytes() == again.tobytes()
+    assert other.tobytes() != again.tobytes()  # the seed does pick the pattern
+
+
+def test_principled_highlight_at_normal_incidence_matches_the_ggx_lobe() -> None:
+    tables = reflection_tables(_spot(bounces=0, material="principled"))
+    alpha, f0 = 0.25, 0.08
+    # mu = 1: D = 1 / (pi alpha^2), G2 = 1, Fresnel = F0; the lobe is divided by its albedo E_ss(1) < 1.
+    lobe = math.pi * (1.0 / (math.pi * alpha**2)) * f0 / 4.0
+    assert lobe < tables.specular[-1] < lobe / 0.85
+    # The diffuse base keeps what the lobe does not reflect; more is reflected at grazing angles.
+    assert tables.diffuse[-1] == pytest.approx(1.0 - tables.albedo[-1])
+    assert 0.07 < tables.albedo[-1] < 0.1 < tables.albedo[100]
+
+
+def test_textured_scenes_bounce_their_texture_colours() -> None:
+    # A textured room (every face one texel of a 1 x 1 texture): the bounce colours come from the texture.
+    scene = room_scene()
+    scene.face_uvs = np.zeros((len(scene.faces), 3, 2), np.float32)
+    scene.face_material = np.zeros(len(scene.faces), np.uint16)
+    scene.textures = [np.array([[[200, 40, 40]]], np.uint8)]
+    scene.vertex_colors = None
+    pose = look_at(np.array([0.0, 1.2, -1.5]), np.array([0.0, 0.5, 1.5]))
+    hits = VideoRenderer(scene, embodiment(), exposure=2.0).trace(pose)
+    assert np.all(SurfaceColors(scene).albedo_at(hits.face[hits.hit], hits.barycentric[hits.hit]) == [200, 40, 40])
+    blocks = VideoRenderer(scene, embodiment(light=_spot(bounces=2)), exposure=2.0).indirect.irradiance(hits, pose)
+    lit = blocks[hits.hit[::2, ::2]]
+    assert np.all(lit[:, 0] > lit[:, 1])  # red walls bounce red light
