@@ -37,7 +37,7 @@ from pipeline.io.mvpd.layout import (
     pose_to_mvpd,
     write_json,
 )
-from pipeline.io.segments import DenseLabels, frame_segments
+from pipeline.io.segments import DenseLabels, frame_segments, unique_with_inverse
 from pipeline.io.mvpd.split_files import empty_videos_file, split_rows_of, zero_shot_file
 from pipeline.io.reader import video_locations
 from pipeline.io.zarr_video import Video, open_video
@@ -321,7 +321,7 @@ def _to_mvpd_ids(panoptic: np.ndarray, scene: str, video: str, objects: dict[tup
 
     Objects without an mpcat40 category become void, as in MVPd (its formatter skips category 0).
     """
-    unique, inverse = np.unique(panoptic, return_inverse=True)
+    unique, inverse = unique_with_inverse(panoptic)
     mapped = np.zeros(len(unique), dtype=np.uint32)
     present: dict[int, dict[str, Any]] = {}
     for index, object_id in enumerate(int(v) for v in unique):
