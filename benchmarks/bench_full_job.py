@@ -27,9 +27,10 @@ outputs go under --run-dir's parent, never into the repository.
 from __future__ import annotations
 
 import argparse
+import calendar
 import json
 import os
-import statistics
+import signal
 import subprocess
 import sys
 import threading
@@ -43,13 +44,19 @@ sys.path.insert(0, str(REPO))
 
 import psutil  # noqa: E402
 
-from benchmarks.bench_scaling import NODE_CORES, NODE_COUNTS, summary  # noqa: E402
+from benchmarks.bench_scaling import (  # noqa: E402
+    MVPD_FRAMES, MVPD_VIDEOS, RESULTS as SCALING_RESULTS, job_core_seconds, on_nodes, stage_rates, summary)
+from pipeline.runtime.run_folder import RunFolder  # noqa: E402
 
 RESULTS = REPO / "benchmarks" / "results" / "full_job_1pct.json"
 JOB = REPO / "jobs" / "mvpd-1pct.yaml"
 JOB_STAGES = ("shard", "plan", "render", "screen", "split")
 MODEL = "geometric"
 EMBODIMENT = "mvpd"
+MVPD_SCENES = 180
+MVPD_PATHS = 9_000
+MVPD_TEST_FRAMES = 606_000  # 18 scenes x 50 paths x 2 heights x 336.7 frames (models.json)
+TARGETS = {"cost_model_error": 0.15, "driver_gib": 1.0, "status_s": 2.0}
 
 
 @dataclass
@@ -72,7 +79,8 @@ class TreeSample:
             return
         self.cpu_s[key] = max(self.cpu_s.get(key, 0.0), cpu)
         self.peak_rss[key] = max(self.peak_rss.get(key, 0), rss)
-        self.kind[key] = kind
+        # A process is what it was first seen as: an exiting worker's command line reads empty.
+        self.kind.setdefault(key, kind)
 
     def total_cpu_s(self) -> float:
         return sum(self.cpu_s.values())
@@ -93,7 +101,9 @@ def process_kind(process: psutil.Process, root: psutil.Process) -> str:
         command = " ".join(process.cmdline())
     except psutil.Error:
         return "ray"
-    return "worker" if ("default_worker.py" in command or command.startswith("ray::")) else "ray"
+    # Ray names its workers' processes ray::IDLE or ray::<task>; its agents are ray::<Name>Agent.
+    is_worker = "default_worker.py" in command or (command.startswith("ray::") and not command.split()[0].endswith("Agent"))
+    return "worker" if is_worker else "ray"
 
 
 def sample_tree(root: psutil.Process, sample: TreeSample, stop: threading.Event, every_s: float = 0.5) -> None:
@@ -118,17 +128,22 @@ def cli_env() -> dict[str, str]:
             "RAY_USAGE_STATS_ENABLED": "0"}
 
 
-def run_measured(command: list[str], log: Path) -> dict[str, Any]:
-    """Run one command to its end; wall and CPU seconds of its process tree, peak RSS, load average."""
+def run_measured(command: list[str], log: Path, deadline: float | None = None) -> dict[str, Any]:
+    """Run one command to its end (or SIGTERM it at `deadline`, epoch seconds: the CLI then stops with exit 143
+    and keeps its finished units); wall and CPU seconds of its process tree, peak RSS, load average."""
     load_before = os.getloadavg()[0]
     began = time.perf_counter()
     with log.open("w", encoding="utf-8") as out:
         child = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT, env=cli_env(), cwd=REPO)
-        root = psutil.Process(child.pid)
+        root = psutil.Process(child.pid)  # `nice` execs the command: same pid
         sample, stop = TreeSample(), threading.Event()
         sampler = threading.Thread(target=sample_tree, args=(root, sample, stop), daemon=True)
         sampler.start()
-        code = child.wait()
+        while (code := child.poll()) is None:
+            if deadline is not None and time.time() > deadline:
+                child.send_signal(signal.SIGTERM)
+                deadline = None
+            time.sleep(0.5)
         stop.set()
         sampler.join()
     wall = time.perf_counter() - began
@@ -167,14 +182,16 @@ def step_commands(job: Path, run_dir: Path, outputs: Path) -> dict[str, list[str
     commands = {stage: mvpd_command("submit", str(job), "--run-dir", run, "--stages", stage, "--executor", "ray")
                 for stage in JOB_STAGES}
     commands.update({
+        # Everything is done: what one command costs by itself (starting the driver and a local Ray).
+        "resubmit": mvpd_command("submit", str(job), "--run-dir", run, "--executor", "ray"),
         "stats": mvpd_command("stats", run, "--out", str(outputs / "stats.png")),
         "report": mvpd_command("report", run, "--models", MODEL, "--embodiment", EMBODIMENT, "--out", str(report)),
         "evaluate": mvpd_command("evaluate", run, "--pred", str(report / "predictions" / MODEL), "--embodiment",
                                  EMBODIMENT, "--all", "--executor", "ray", "--out", str(outputs / "vsq.json")),
         "predict": mvpd_command("predict", run, "--model", MODEL, "--split", "test", "--embodiment", EMBODIMENT,
                                 "--out", str(report / "predictions" / MODEL)),
-        "export": mvpd_command("export", run, "--mvpd", str(outputs / "mvpd")),
         "view": mvpd_command("view", run, "VIDEO", "--embodiment", EMBODIMENT, "--out", str(outputs / "view.rrd")),
+        "export": mvpd_command("export", run, "--mvpd", str(outputs / "mvpd")),
     })
     return commands
 
@@ -184,6 +201,117 @@ def latency_commands(run_dir: Path) -> dict[str, list[str]]:
     return {"status": mvpd_command("status", run),
             "query": mvpd_command("query", run, "select embodiment, count(*) as videos, sum(frames) as frames "
                                   "from videos group by 1")}
+
+
+def utc_today(clock: str) -> float:
+    """Epoch seconds of today's HH:MM in UTC."""
+    hours, minutes = (int(part) for part in clock.split(":"))
+    now = time.gmtime()
+    return float(calendar.timegm((now.tm_year, now.tm_mon, now.tm_mday, hours, minutes, 0)))
+
+
+def folder_bytes(folder: Path) -> int:
+    return sum(f.stat().st_size for f in folder.rglob("*") if f.is_file())
+
+
+def run_size(run_dir: Path) -> dict[str, Any]:
+    """What the run holds: scenes, paths, videos and frames (all and the test split's), bytes."""
+    from pipeline.split.selection import accepted_videos
+
+    run = RunFolder.open(run_dir)
+    videos = run.read("videos")
+    frames_of = dict(zip(videos.column("video_name").to_pylist(), videos.column("frames").to_pylist()))
+    test = sorted(name for owner, name in accepted_videos(run_dir, "test") or [] if owner == EMBODIMENT)
+    rendered = sum(f.size for m in run.markers("render").values() for f in m.files)
+    frames = sum(frames_of.values())
+    return {"scenes": run.read("scenes").num_rows, "paths": run.read("trajectories").num_rows // 2,
+            "videos": len(frames_of), "frames": frames,
+            "frames_per_video": summary([float(f) for f in frames_of.values()]),
+            "test_videos_accepted": len(test), "test_frames_accepted": sum(frames_of[v] for v in test),
+            "render_bytes": rendered, "render_bytes_per_frame": round(rendered / frames),
+            "run_bytes": folder_bytes(run_dir), "run_bytes_per_frame": round(folder_bytes(run_dir) / frames)}
+
+
+def measured_rates(steps: dict[str, Any], size: dict[str, Any], command_s: float) -> dict[str, float]:
+    """This run's CPU seconds per unit of work (each stage's command cost taken out), in stage_rates' terms.
+
+    Plan is charged per path only (an upper bound at 50 paths a scene: its BVH and navigable area are per scene).
+    """
+    work = {stage: max(0.0, steps[stage]["cpu_s"] - command_s) if stage in steps else 0.0 for stage in JOB_STAGES}
+    return {"render_s_per_frame": work["render"] / size["frames"], "shard_s_per_scene": work["shard"] / size["scenes"],
+            "plan_s_per_scene": 0.0, "plan_s_per_path": work["plan"] / size["paths"],
+            "screen_split_s_per_video": (work["screen"] + work["split"]) / size["videos"]}
+
+
+def command_cpu_s(steps: dict[str, Any]) -> tuple[float, str]:
+    """CPU seconds one `mvpd submit` costs by itself: a submit that finds everything done, else (a run stopped
+    early) the shard command's driver and Ray processes without its workers."""
+    if "resubmit" in steps:
+        return steps["resubmit"]["cpu_s"], "resubmit (every stage done)"
+    kinds = steps["shard"]["cpu_s_by_kind"]
+    return round(kinds["driver"] + kinds["ray"], 1), "shard command's driver + Ray processes"
+
+
+def cost_model_check(steps: dict[str, Any], size: dict[str, Any], command_s: float) -> dict[str, Any]:
+    """The cost model's CPU seconds for the stages this run ran (their work and one command each) beside the
+    measured ones; error = predicted / measured - 1."""
+    ran = [stage for stage in JOB_STAGES if stage in steps]
+    rates = stage_rates(json.loads(SCALING_RESULTS.read_text())["render_workers"])
+    videos = size["videos"] if "screen" in ran else 0
+    predicted = job_core_seconds(rates, size["scenes"], size["paths"], videos, size["frames"], command_s, len(ran))
+    measured = sum(steps[stage]["cpu_s"] for stage in ran)
+    return {"stages": ran, "predicted_cpu_s": predicted,
+            "measured_cpu_s": {**{stage: steps[stage]["cpu_s"] for stage in ran}, "total": round(measured, 1)},
+            "predicted_core_hours": round(predicted["total"] / 3600, 3), "measured_core_hours": round(measured / 3600, 3),
+            "error": round(predicted["total"] / measured - 1, 3),
+            "rates_predicted": {k: round(v, 5) for k, v in rates.items()},
+            "note": "rates from benchmarks/results/{scaling,scenes,plan,split}.json (bench_scaling.stage_rates); "
+                    "render frames are the frames this run rendered"}
+
+
+def analyse(results: dict[str, Any], run_dir: Path, outputs: Path) -> dict[str, Any]:
+    """Frames per core-second, bytes, peak memory, the cost model next to the measurement, the projection."""
+    steps = results["steps"]
+    size = run_size(run_dir)
+    command_s, command_how = command_cpu_s(steps)
+    job_cpu_s = sum(steps[stage]["cpu_s"] for stage in JOB_STAGES if stage in steps)
+    projected = job_core_seconds(measured_rates(steps, size, command_s), MVPD_SCENES, MVPD_PATHS, MVPD_VIDEOS,
+                                 MVPD_FRAMES, command_s)
+    analysis: dict[str, Any] = {
+        "size": size,
+        "job_cpu_s": round(job_cpu_s, 1),
+        "job_wall_s": round(sum(steps[s]["wall_s"] for s in JOB_STAGES if s in steps), 1),
+        "frames_per_core_second": {"render": round(size["frames"] / steps["render"]["cpu_s"], 2),
+                                   "render_workers_only": round(size["frames"] / steps["render"]["cpu_s_by_kind"]["worker"], 2),
+                                   "job": round(size["frames"] / job_cpu_s, 2)},
+        "peak_rss_gib": {"driver": max(s["peak_rss_gib"]["driver"] for s in steps.values()),
+                         "worker": max(s["peak_rss_gib"]["worker"] for s in steps.values())},
+        "command_cpu_s": {"seconds": command_s, "from": command_how},
+        "cost_model": cost_model_check(steps, size, command_s),
+        "projection_mvpd": {"videos": MVPD_VIDEOS, "frames": MVPD_FRAMES, "job_core_seconds": projected,
+                            "job_core_hours": round(projected["total"] / 3600, 1),
+                            "job_wall_hours_on_nodes": on_nodes(projected["total"] / 3600),
+                            "stored_tb": round(MVPD_FRAMES * size["run_bytes_per_frame"] / 1e12, 3),
+                            "how": "this run's CPU seconds per frame (render), per scene (shard), per path (plan), per "
+                                   "video (screen + split), each without its command's cost, times MVPd's counts"},
+    }
+    test_frames = size["test_frames_accepted"]
+    if "report" in steps and test_frames:
+        per_frame_s = (steps["report"]["cpu_s"] - command_s) / test_frames
+        analysis["report_cpu_ms_per_test_frame"] = round(1000 * per_frame_s, 1)
+        analysis["projection_mvpd"]["report_geometric_test_core_hours"] = round(per_frame_s * MVPD_TEST_FRAMES / 3600, 1)
+    if steps.get("export", {}).get("exit") == 0:
+        export_bytes = folder_bytes(outputs / "mvpd")
+        per_frame_s = steps["export"]["cpu_s"] / size["frames"]
+        analysis["export"] = {"bytes": export_bytes, "bytes_per_frame": round(export_bytes / size["frames"]),
+                              "cpu_ms_per_frame": round(1000 * per_frame_s, 1)}
+        analysis["projection_mvpd"]["export_core_hours"] = round(per_frame_s * MVPD_FRAMES / 3600, 1)
+    status_s = results.get("latency", {}).get("status", {}).get("seconds", {}).get("median")
+    analysis["targets"] = {**TARGETS, "met": {
+        "cost_model_error": abs(analysis["cost_model"]["error"]) <= TARGETS["cost_model_error"],
+        "driver_gib": analysis["peak_rss_gib"]["driver"] < TARGETS["driver_gib"],
+        "status_s": status_s is not None and status_s < TARGETS["status_s"]}}
+    return analysis
 
 
 def save(results: dict[str, Any], path: Path) -> None:
@@ -198,7 +326,10 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="times each latency is measured")
     parser.add_argument("--resume", action="store_true", help="keep the steps already in the results file")
     parser.add_argument("--only", nargs="+", help="run only these steps (others keep their recorded values)")
+    parser.add_argument("--deadline", help="UTC HH:MM: stop the running step then (SIGTERM, finished units kept), "
+                        "skip the rest and measure what was done")
     args = parser.parse_args()
+    deadline = utc_today(args.deadline) if args.deadline else None
     run_dir = args.run_dir.resolve()
     if REPO in run_dir.parents:
         parser.error(f"--run-dir {run_dir} is inside the repository; give a folder outside it")
@@ -216,16 +347,22 @@ def main() -> None:
         if name == "view":
             command = [first_test_video(run_dir) if word == "VIDEO" else word for word in command]
         print(f"{time.strftime('%H:%M:%S')} {name}: {' '.join(command[4:])}", flush=True)
-        steps[name] = run_measured(command, outputs / "logs" / f"{name}.log")
+        steps[name] = run_measured(command, outputs / "logs" / f"{name}.log", deadline)
         print(f"  {json.dumps(steps[name])}", flush=True)
         save(results, args.results)
         if steps[name]["exit"] != 0 and name in JOB_STAGES:
-            sys.exit(f"{name} exited {steps[name]['exit']}; see {steps[name]['log']}")
+            # Later steps need this stage whole: measure the run as far as it got.
+            results["stopped_in"] = name
+            print(f"{name} exited {steps[name]['exit']} (see {steps[name]['log']}); measuring the run as it is")
+            break
     for name, command in latency_commands(run_dir).items():
         if args.only and name not in args.only:
             continue
         results.setdefault("latency", {})[name] = latency(command, args.repeats)
     save(results, args.results)
+    results["analysis"] = analyse(results, run_dir, outputs)
+    save(results, args.results)
+    print(json.dumps(results["analysis"], indent=1))
     print(f"wrote {args.results}")
 
 
