@@ -94,16 +94,19 @@ class TreeSample:
 
 
 def process_kind(process: psutil.Process, root: psutil.Process) -> str:
-    """driver (the command), worker (a Ray worker: runs units) or ray (raylet, GCS, log monitor...)."""
+    """driver (the command), worker (a Ray worker running units, or an export worker) or other (Ray's raylet,
+    GCS, agents, log monitor...)."""
     if process.pid == root.pid:
         return "driver"
     try:
         command = " ".join(process.cmdline())
     except psutil.Error:
-        return "ray"
-    # Ray names its workers' processes ray::IDLE or ray::<task>; its agents are ray::<Name>Agent.
-    is_worker = "default_worker.py" in command or (command.startswith("ray::") and not command.split()[0].endswith("Agent"))
-    return "worker" if is_worker else "ray"
+        return "other"
+    # Ray names its workers' processes ray::IDLE or ray::<task>, its agents ray::<Name>Agent; the MVPd
+    # export's workers are spawned by multiprocessing.
+    is_worker = ("default_worker.py" in command or "multiprocessing.spawn" in command
+                 or (command.startswith("ray::") and not command.split()[0].endswith("Agent")))
+    return "worker" if is_worker else "other"
 
 
 def sample_tree(root: psutil.Process, sample: TreeSample, stop: threading.Event, every_s: float = 0.5) -> None:
@@ -147,21 +150,19 @@ def run_measured(command: list[str], log: Path, deadline: float | None = None) -
         stop.set()
         sampler.join()
     wall = time.perf_counter() - began
-    return {"command": " ".join(command[4:]), "exit": code, "wall_s": round(wall, 1),
-            "cpu_s": round(sample.total_cpu_s(), 1), "cpu_s_by_kind": {k: sample.cpu_of(k) for k in ("driver", "worker", "ray")},
+    return {"command": " ".join(command[command.index("pipeline.cli.main") + 1:]), "exit": code, "wall_s": round(wall, 1),
+            "cpu_s": round(sample.total_cpu_s(), 1), "cpu_s_by_kind": {k: sample.cpu_of(k) for k in ("driver", "worker", "other")},
             "peak_rss_gib": {"driver": sample.peak_gib("driver"), "worker": sample.peak_gib("worker")},
             "load_average_1m": [round(load_before, 2), round(os.getloadavg()[0], 2)], "log": str(log)}
 
 
-def latency(command: list[str], repeats: int) -> dict[str, Any]:
-    """Seconds of a read-only command, `repeats` times (not niced: a user waits for it)."""
-    seconds, codes = [], set()
-    for _ in range(repeats):
-        began = time.perf_counter()
-        codes.add(subprocess.run(command[3:], capture_output=True, env=cli_env(), cwd=REPO).returncode)
-        seconds.append(time.perf_counter() - began)
-    return {"command": " ".join(command[5:]), "exit": sorted(codes), "seconds": summary(seconds),
-            "load_average_1m": round(os.getloadavg()[0], 2)}
+def latency(command: list[str], repeats: int, log: Path) -> dict[str, Any]:
+    """Wall and CPU seconds of a read-only command, `repeats` times (not niced: a user waits for it). On a
+    loaded machine the wall time is mostly waiting for a core: the CPU time is the command's own cost."""
+    runs = [run_measured(command[3:], log) for _ in range(repeats)]
+    return {"command": runs[0]["command"], "exit": sorted({r["exit"] for r in runs}),
+            "seconds": summary([r["wall_s"] for r in runs]), "cpu_s": summary([r["cpu_s"] for r in runs]),
+            "load_average_1m": [r["load_average_1m"][0] for r in runs]}
 
 
 def first_test_video(run_dir: Path) -> str:
@@ -175,14 +176,14 @@ def first_test_video(run_dir: Path) -> str:
     return names[0]
 
 
-def step_commands(job: Path, run_dir: Path, outputs: Path) -> dict[str, list[str]]:
+def step_commands(job: Path, run_dir: Path, outputs: Path, export_split: str | None = None) -> dict[str, list[str]]:
     """Step name -> command, in the order a user runs them (the view's video is chosen when it runs)."""
     run = str(run_dir)
     report = outputs / "report"
     commands = {stage: mvpd_command("submit", str(job), "--run-dir", run, "--stages", stage, "--executor", "ray")
                 for stage in JOB_STAGES}
     commands.update({
-        # Everything is done: what one command costs by itself (starting the driver and a local Ray).
+        # Everything is done: what submitting a finished run again costs (no unit runs).
         "resubmit": mvpd_command("submit", str(job), "--run-dir", run, "--executor", "ray"),
         "stats": mvpd_command("stats", run, "--out", str(outputs / "stats.png")),
         "report": mvpd_command("report", run, "--models", MODEL, "--embodiment", EMBODIMENT, "--out", str(report)),
@@ -191,7 +192,8 @@ def step_commands(job: Path, run_dir: Path, outputs: Path) -> dict[str, list[str
         "predict": mvpd_command("predict", run, "--model", MODEL, "--split", "test", "--embodiment", EMBODIMENT,
                                 "--out", str(report / "predictions" / MODEL)),
         "view": mvpd_command("view", run, "VIDEO", "--embodiment", EMBODIMENT, "--out", str(outputs / "view.rrd")),
-        "export": mvpd_command("export", run, "--mvpd", str(outputs / "mvpd")),
+        "export": mvpd_command("export", run, "--mvpd", str(outputs / "mvpd"),
+                               *(["--split", export_split] if export_split else [])),
     })
     return commands
 
@@ -208,6 +210,11 @@ def utc_today(clock: str) -> float:
     hours, minutes = (int(part) for part in clock.split(":"))
     now = time.gmtime()
     return float(calendar.timegm((now.tm_year, now.tm_mon, now.tm_mday, hours, minutes, 0)))
+
+
+def exported_frames(root: Path) -> int:
+    """Frames of an MVPd export: one panoptic PNG each."""
+    return sum(1 for _ in root.glob("*/panomasksRGB/*/*.png"))
 
 
 def folder_bytes(folder: Path) -> int:
@@ -244,12 +251,11 @@ def measured_rates(steps: dict[str, Any], size: dict[str, Any], command_s: float
 
 
 def command_cpu_s(steps: dict[str, Any]) -> tuple[float, str]:
-    """CPU seconds one `mvpd submit` costs by itself: a submit that finds everything done, else (a run stopped
-    early) the shard command's driver and Ray processes without its workers."""
-    if "resubmit" in steps:
-        return steps["resubmit"]["cpu_s"], "resubmit (every stage done)"
+    """CPU seconds one `mvpd submit` with work to do costs by itself (the driver and a local Ray starting,
+    tracking and stopping): the shard command's driver and Ray processes, its workers left out. (A submit
+    that finds everything done starts no Ray: `resubmit` is not that cost.)"""
     kinds = steps["shard"]["cpu_s_by_kind"]
-    return round(kinds["driver"] + kinds["ray"], 1), "shard command's driver + Ray processes"
+    return round(kinds["driver"] + kinds.get("other", kinds.get("ray", 0.0)), 1), "shard command's driver + Ray processes"
 
 
 def cost_model_check(steps: dict[str, Any], size: dict[str, Any], command_s: float) -> dict[str, Any]:
@@ -302,8 +308,9 @@ def analyse(results: dict[str, Any], run_dir: Path, outputs: Path) -> dict[str, 
         analysis["projection_mvpd"]["report_geometric_test_core_hours"] = round(per_frame_s * MVPD_TEST_FRAMES / 3600, 1)
     if steps.get("export", {}).get("exit") == 0:
         export_bytes = folder_bytes(outputs / "mvpd")
-        per_frame_s = steps["export"]["cpu_s"] / size["frames"]
-        analysis["export"] = {"bytes": export_bytes, "bytes_per_frame": round(export_bytes / size["frames"]),
+        frames = exported_frames(outputs / "mvpd")
+        per_frame_s = steps["export"]["cpu_s"] / frames
+        analysis["export"] = {"frames": frames, "bytes": export_bytes, "bytes_per_frame": round(export_bytes / frames),
                               "cpu_ms_per_frame": round(1000 * per_frame_s, 1)}
         analysis["projection_mvpd"]["export_core_hours"] = round(per_frame_s * MVPD_FRAMES / 3600, 1)
     status_s = results.get("latency", {}).get("status", {}).get("seconds", {}).get("median")
@@ -326,6 +333,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="times each latency is measured")
     parser.add_argument("--resume", action="store_true", help="keep the steps already in the results file")
     parser.add_argument("--only", nargs="+", help="run only these steps (others keep their recorded values)")
+    parser.add_argument("--export-split", help="export only this split (default: every split, as a user does)")
     parser.add_argument("--deadline", help="UTC HH:MM: stop the running step then (SIGTERM, finished units kept), "
                         "skip the rest and measure what was done")
     args = parser.parse_args()
@@ -339,11 +347,11 @@ def main() -> None:
     results.update({"job": str(args.job), "run_dir": str(run_dir),
                     "machine": {"cpus": os.cpu_count(), "python": sys.version.split()[0]}})
     steps = results.setdefault("steps", {})
-    commands = step_commands(args.job.resolve(), run_dir, outputs)
+    commands = step_commands(args.job.resolve(), run_dir, outputs, args.export_split)
     for name, command in commands.items():
         wanted = name in args.only if args.only else name not in steps
-        if not wanted:
-            continue
+        if not wanted or (name == "resubmit" and "stopped_in" in results):
+            continue  # a resubmit of a run stopped early would go on with its work
         if name == "view":
             command = [first_test_video(run_dir) if word == "VIDEO" else word for word in command]
         print(f"{time.strftime('%H:%M:%S')} {name}: {' '.join(command[4:])}", flush=True)
@@ -358,7 +366,7 @@ def main() -> None:
     for name, command in latency_commands(run_dir).items():
         if args.only and name not in args.only:
             continue
-        results.setdefault("latency", {})[name] = latency(command, args.repeats)
+        results.setdefault("latency", {})[name] = latency(command, args.repeats, outputs / "logs" / f"{name}.log")
     save(results, args.results)
     results["analysis"] = analyse(results, run_dir, outputs)
     save(results, args.results)
