@@ -165,6 +165,23 @@ def latency(command: list[str], repeats: int, log: Path) -> dict[str, Any]:
             "load_average_1m": [r["load_average_1m"][0] for r in runs]}
 
 
+def export_workers(run_dir: Path, outputs: Path, split: str, repeats: int) -> dict[str, Any]:
+    """`mvpd export --split SPLIT` on one core (`taskset -c 0`: the export then uses one process) against every
+    core (one worker process each), `repeats` times interleaved; wall and CPU seconds."""
+    runs: dict[str, list[dict[str, Any]]] = {"one_core": [], "all_cores": []}
+    for index in range(repeats):
+        for name, prefix in (("one_core", ["taskset", "-c", "0"]), ("all_cores", [])):
+            out = outputs / f"export-{name}-{index}"
+            runs[name].append(run_measured([*prefix, *mvpd_command("export", str(run_dir), "--mvpd", str(out), "--split", split)],
+                                           outputs / "logs" / f"export-{name}.log"))
+            subprocess.run(["rm", "-rf", str(out)], check=True)
+    wall = {name: summary([r["wall_s"] for r in found]) for name, found in runs.items()}
+    return {"split": split, "cores": len(os.sched_getaffinity(0)), "wall_s": wall,
+            "cpu_s": {name: summary([r["cpu_s"] for r in found]) for name, found in runs.items()},
+            "speedup": round(wall["one_core"]["median"] / wall["all_cores"]["median"], 2),
+            "load_average_1m": [r["load_average_1m"][0] for found in runs.values() for r in found]}
+
+
 def first_test_video(run_dir: Path) -> str:
     """A test video the report scored (the split's first accepted one), for `mvpd view`."""
     from pipeline.split.selection import accepted_videos
@@ -334,6 +351,8 @@ def main() -> None:
     parser.add_argument("--resume", action="store_true", help="keep the steps already in the results file")
     parser.add_argument("--only", nargs="+", help="run only these steps (others keep their recorded values)")
     parser.add_argument("--export-split", help="export only this split (default: every split, as a user does)")
+    parser.add_argument("--export-workers", metavar="SPLIT", help="also time exporting SPLIT on one core against "
+                        "every core (--repeats times)")
     parser.add_argument("--deadline", help="UTC HH:MM: stop the running step then (SIGTERM, finished units kept), "
                         "skip the rest and measure what was done")
     args = parser.parse_args()
@@ -363,6 +382,9 @@ def main() -> None:
             results["stopped_in"] = name
             print(f"{name} exited {steps[name]['exit']} (see {steps[name]['log']}); measuring the run as it is")
             break
+    if args.export_workers:
+        results["export_workers"] = export_workers(run_dir, outputs, args.export_workers, args.repeats)
+        save(results, args.results)
     for name, command in latency_commands(run_dir).items():
         if args.only and name not in args.only:
             continue

@@ -49,6 +49,8 @@ from pipeline.split.selection import has_split, split_rows
 log = logging.getLogger(__name__)
 TRAIN_SPLIT = "train"
 READ_BLOCK = 16  # frames read from Zarr at once: one shard of the default layout
+# A worker process costs ~2.5 CPU seconds to start (its imports): give each at least ~25 s of frames to encode.
+FRAMES_PER_WORKER = 1000
 
 
 class MvpdExportError(ValueError):
@@ -211,6 +213,7 @@ class VideoTask:
     objects: dict[tuple[str, int], tuple[int, str]]
     split_folder: Path
     first_image_id: int
+    frames: int
 
 
 def _video_tasks(run: RunFolder, videos: dict[str, dict[str, Any]], chosen: str, lit: dict[str, str],
@@ -223,7 +226,7 @@ def _video_tasks(run: RunFolder, videos: dict[str, dict[str, Any]], chosen: str,
     tasks, first_image_id = [], 0
     for name, video in videos.items():
         tasks.append(VideoTask(stores[(chosen, name)], {folder: stores[(other, name)] for folder, other in lit.items()},
-                               by_scene.get(video["scene_id"], {}), staging, first_image_id))
+                               by_scene.get(video["scene_id"], {}), staging, first_image_id, int(video["frames"])))
         first_image_id += int(video["frames"])
     return tasks
 
@@ -238,11 +241,12 @@ def _export_videos(tasks: list[VideoTask]) -> Iterator[VideoExport]:
     """Each video's entries in task order, on one process per available core when there are several videos.
 
     Videos are independent and encoding a frame's JPEG and PNG files is the cost: in one process MVPd's 6 M
-    frames would take days of wall time (benchmarks/results/full_job_1pct.json). Workers are spawned, not
-    forked (the caller may hold threads), and results come back in order, so the split's JSON files are the
-    same whatever the number of workers.
+    frames would take days of wall time (benchmarks/results/full_job_1pct.json). An export under
+    2 x FRAMES_PER_WORKER frames stays in this process. Workers are spawned, not forked (the caller may hold
+    threads), and results come back in order, so the split's JSON files are the same whatever the workers.
     """
-    workers = min(len(tasks), len(os.sched_getaffinity(0)))
+    frames = sum(task.frames for task in tasks)
+    workers = min(len(tasks), len(os.sched_getaffinity(0)), max(1, frames // FRAMES_PER_WORKER))
     if workers <= 1:
         yield from map(_export_video, tasks)
         return
