@@ -338,6 +338,16 @@ def analyse(results: dict[str, Any], run_dir: Path, outputs: Path) -> dict[str, 
     return analysis
 
 
+def markdown_table(results: dict[str, Any]) -> str:
+    """The README's table of the steps: wall and CPU seconds, peak RSS of the driver and of a worker."""
+    lines = ["| step | wall s | CPU s | driver GiB | worker GiB | load |", "|---|---:|---:|---:|---:|---|"]
+    for name, step in results["steps"].items():
+        rss = step["peak_rss_gib"]
+        load = "-".join(f"{value:.0f}" for value in step["load_average_1m"])
+        lines.append(f"| {name} | {step['wall_s']:.0f} | {step['cpu_s']:.1f} | {rss['driver']:.2f} | {rss['worker']:.2f} | {load} |")
+    return "\n".join(lines)
+
+
 def save(results: dict[str, Any], path: Path) -> None:
     path.write_text(json.dumps(results, indent=1) + "\n", encoding="utf-8")
 
@@ -393,6 +403,7 @@ def main() -> None:
     results["analysis"] = analyse(results, run_dir, outputs)
     save(results, args.results)
     print(json.dumps(results["analysis"], indent=1))
+    print(markdown_table(results))
     print(f"wrote {args.results}")
 
 
