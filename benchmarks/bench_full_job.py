@@ -9,7 +9,7 @@ workers inherit the niceness, so the run soaks up idle CPU without slowing anyon
   export, view                         `evaluate` re-scores those predictions (`--all`); `predict` into the
                                        same folder finds them done; the MVPd export; `view` of one video
 Per step: wall seconds, CPU seconds of the command's whole process tree (the driver, Ray's raylet and GCS,
-every worker: sampled every 0.5 s while they live, since an exiting worker takes its time along), peak RSS
+every worker: each process's own time, sampled every 0.5 s while it lives), peak RSS
 of the driver and of the largest worker, and the 1-minute load average before and after. CPU time is the
 primary cost figure; wall times were measured on a machine shared with other work.
 
@@ -72,8 +72,9 @@ class TreeSample:
             with process.oneshot():
                 key = (process.pid, process.create_time())
                 times = process.cpu_times()
-                # children_*: descendants already reaped by this process (a worker that exited in between).
-                cpu = times.user + times.system + times.children_user + times.children_system
+                # Its own time only: a reaped child's time also shows in its parent's children_* fields, and
+                # the child was sampled itself (a process that exits loses at most one interval).
+                cpu = times.user + times.system
                 rss = process.memory_info().rss
         except psutil.Error:
             return
@@ -250,7 +251,8 @@ def run_size(run_dir: Path) -> dict[str, Any]:
     frames = sum(frames_of.values())
     return {"scenes": run.read("scenes").num_rows, "paths": run.read("trajectories").num_rows // 2,
             "videos": len(frames_of), "frames": frames,
-            "frames_per_video": summary([float(f) for f in frames_of.values()]),
+            "frames_per_video": {"mean": round(frames / len(frames_of), 1), "min": min(frames_of.values()),
+                                 "max": max(frames_of.values())},
             "test_videos_accepted": len(test), "test_frames_accepted": sum(frames_of[v] for v in test),
             "render_bytes": rendered, "render_bytes_per_frame": round(rendered / frames),
             "run_bytes": folder_bytes(run_dir), "run_bytes_per_frame": round(folder_bytes(run_dir) / frames)}
