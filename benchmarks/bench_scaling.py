@@ -363,14 +363,51 @@ def cost_model(render: dict[str, Any]) -> dict[str, Any]:
             "cpu_ms_per_frame_measured": render["cpu_ms_per_frame"]["median"],
             "earlier_cpu_ms_per_frame_render_json": earlier["parallel_workers"]["cpu_ms_per_frame"],
             "core_hours": round(core_hours, 1),
-            "wall_hours_on_nodes": {f"{n}x{NODE_CORES}": round(core_hours / (n * NODE_CORES), 2)
-                                    for n in NODE_COUNTS},
+            "wall_hours_on_nodes": on_nodes(core_hours),
             "bytes_per_frame": bytes_per_frame,
             "earlier_kb_per_frame_render_json": [earlier["kb_per_frame_ambient"], earlier["kb_per_frame_spot"]],
             "stored_tb": round(MVPD_FRAMES * bytes_per_frame / 1e12, 3),
             "note": "one embodiment per video; wall time assumes every core of a node renders at the per-core "
                     "rate of this machine's saturated 2-worker run, and ignores scene preparation (shard) "
                     "and the object-storage overhead (benchmarks/results/storage.json)"}
+
+
+BENCH_RESULTS = REPO / "benchmarks" / "results"
+
+
+def stage_rates(render: dict[str, Any]) -> dict[str, float]:
+    """CPU seconds per unit of work of every job stage, from the benchmarks' recorded results (none measured here).
+
+    render: the saturated 2-worker run's seconds per frame per core (this file's `render_workers`);
+    shard: generating one house at detail 0.1 (scenes.json); plan: one scene's BVH, navigable area and 50
+    paths (plan.json, 1 M triangles), per path; screen + split: split.json's stage on 18,000 videos, per video.
+    """
+    scenes = json.loads((BENCH_RESULTS / "scenes.json").read_text())
+    plan = json.loads((BENCH_RESULTS / "plan.json").read_text())["results"]
+    split = json.loads((BENCH_RESULTS / "split.json").read_text())
+    per_scene_plan = statistics.median(r["bvh_s"] + r["navigable_area_s"] for r in plan)
+    per_path = statistics.median(r["trajectories_s"] / r["trajectories"] for r in plan)
+    return {"render_s_per_frame": 2 / render["fps_2_workers"]["median"],
+            "shard_s_per_scene": scenes["generate"]["0.1"]["seconds"],
+            "plan_s_per_scene": per_scene_plan, "plan_s_per_path": per_path,
+            "screen_split_s_per_video": split["split_seconds"]["median"] / split["metadata"]["videos"]}
+
+
+def job_core_seconds(rates: dict[str, float], scenes: int, paths: int, videos: int, frames: int,
+                     command_s: float = 0.0, commands: int = 1) -> dict[str, float]:
+    """Predicted CPU seconds per stage of one job; `command_s` is the fixed cost of one command (its driver
+    and local Ray starting and stopping), paid `commands` times (once per `mvpd submit`)."""
+    stages = {"shard": rates["shard_s_per_scene"] * scenes,
+              "plan": rates["plan_s_per_scene"] * scenes + rates["plan_s_per_path"] * paths,
+              "render": rates["render_s_per_frame"] * frames,
+              "screen+split": rates["screen_split_s_per_video"] * videos,
+              "commands": command_s * commands}
+    return {**{k: round(v, 1) for k, v in stages.items()}, "total": round(sum(stages.values()), 1)}
+
+
+def on_nodes(core_hours: float) -> dict[str, float]:
+    """Wall hours of `core_hours` on 1, 8 and 32 nodes of 16 cores, every core busy."""
+    return {f"{n}x{NODE_CORES}": round(core_hours / (n * NODE_CORES), 2) for n in NODE_COUNTS}
 
 
 def main() -> None:

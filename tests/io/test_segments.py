@@ -38,3 +38,14 @@ def test_random_frames_match_a_brute_force_count() -> None:
             assert found.areas[k] == len(rows)
             assert found.boxes[k].tolist() == [columns.min(), rows.min(), columns.max() + 1, rows.max() + 1]
         assert found.void_pixels == int((ids == 0).sum())
+
+
+def test_unique_with_inverse_is_numpys_unique():
+    from pipeline.io.segments import unique_with_inverse
+
+    ids = np.random.default_rng(0).choice(np.array([0, 7, 70000, 2**31 + 5], np.uint32), size=(48, 64))
+    unique, inverse = unique_with_inverse(ids)
+    expected_unique, expected_inverse = np.unique(ids, return_inverse=True)
+    assert np.array_equal(unique, expected_unique) and unique.dtype == ids.dtype
+    assert inverse.shape == ids.shape and np.array_equal(inverse, expected_inverse.reshape(ids.shape))
+    assert np.array_equal(unique[inverse], ids)

@@ -7,10 +7,12 @@ The split is built in a hidden folder beside its final place and renamed into pl
 from __future__ import annotations
 
 import logging
+import multiprocessing
 import os
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,7 +39,7 @@ from pipeline.io.mvpd.layout import (
     pose_to_mvpd,
     write_json,
 )
-from pipeline.io.segments import DenseLabels, frame_segments
+from pipeline.io.segments import DenseLabels, frame_segments, unique_with_inverse
 from pipeline.io.mvpd.split_files import empty_videos_file, split_rows_of, zero_shot_file
 from pipeline.io.reader import video_locations
 from pipeline.io.zarr_video import Video, open_video
@@ -47,6 +49,8 @@ from pipeline.split.selection import has_split, split_rows
 log = logging.getLogger(__name__)
 TRAIN_SPLIT = "train"
 READ_BLOCK = 16  # frames read from Zarr at once: one shard of the default layout
+# A worker process costs ~2.5 CPU seconds to start (its imports): give each at least ~25 s of frames to encode.
+FRAMES_PER_WORKER = 1000
 
 
 class MvpdExportError(ValueError):
@@ -97,10 +101,10 @@ def export_release(run_root: Path, out_root: Path, split: str = "test", embodime
     paths = SplitPaths(Path(out_root).expanduser().resolve(), split)
     if paths.folder.exists() and not overwrite:
         raise MvpdExportError(f"{paths.folder}: already exists; delete it or pass --overwrite")
-    videos = _video_names(run, chosen)
+    videos = _videos_of(run, chosen)
     split_rows = split_rows_of(run.root, split) if has_split(run.root) else None
     if split_rows is not None:  # the split stage decides which videos are in the split and their flags
-        videos = [name for name in videos if name in split_rows]
+        videos = {name: video for name, video in videos.items() if name in split_rows}
         if not videos:
             raise MvpdExportError(f"{run.root / 'splits'}: no video of embodiment {chosen!r} in split {split!r}")
     objects = _release_objects(run)
@@ -112,13 +116,10 @@ def export_release(run_root: Path, out_root: Path, split: str = "test", embodime
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
     try:
+        tasks = _video_tasks(run, videos, chosen, lit, objects, staging)
         exported = []
-        stores = video_locations(run)  # local paths, or URLs on the run's object store
-        for name in videos:
-            extra_rgb = {folder: open_video(stores[(other, name)]) for folder, other in lit.items()}
-            exporter = VideoExporter(open_video(stores[(chosen, name)]), objects, staging, extra_rgb,
-                                     first_image_id=sum(len(v.images) for v in exported))
-            exported.append(exporter.run())
+        for name, export in zip(videos, _export_videos(tasks)):
+            exported.append(export)
             if on_video is not None:
                 on_video(name)
         _write_split_files(staging, split, exported)
@@ -191,16 +192,69 @@ def _camera_warnings(run: RunFolder, chosen: str) -> list[str]:
             f"(fx {MVPD_FX}); the authors' loader hard-codes those intrinsics, read ours from the run"]
 
 
-def _video_names(run: RunFolder, embodiment: str) -> list[str]:
-    """Committed videos of the embodiment, sorted by name (the `videos` table lists committed ones only)."""
-    table = run.read("videos")
-    names = sorted(
-        name for name, emb in zip(table["video_name"].to_pylist(), table["embodiment"].to_pylist()) if emb == embodiment
-    )
-    if not names:
+def _videos_of(run: RunFolder, embodiment: str) -> dict[str, dict[str, Any]]:
+    """Committed videos of the embodiment, by name in sorted order -> their `videos` row (scene_id, frames);
+    the `videos` table lists committed ones only."""
+    rows = [row for row in run.read("videos").select(["video_name", "embodiment", "scene_id", "frames"]).to_pylist()
+            if row["embodiment"] == embodiment]
+    if not rows:
         raise MvpdExportError(f"{run.root / 'videos'}: no videos of embodiment {embodiment!r}; "
                               "run the render stage first")
-    return names
+    return {row["video_name"]: row for row in sorted(rows, key=lambda row: row["video_name"])}
+
+
+@dataclass(frozen=True)
+class VideoTask:
+    """What exporting one video needs, small enough to send to a worker process: store locations, not stores,
+    and only its own scene's objects."""
+
+    store: str
+    extra_rgb: dict[str, str]
+    objects: dict[tuple[str, int], tuple[int, str]]
+    split_folder: Path
+    first_image_id: int
+    frames: int
+
+
+def _video_tasks(run: RunFolder, videos: dict[str, dict[str, Any]], chosen: str, lit: dict[str, str],
+                 objects: dict[tuple[str, int], tuple[int, str]], staging: Path) -> list[VideoTask]:
+    """One task per video in order; image ids run on over the split's videos, from the frame counts."""
+    stores = video_locations(run)  # local paths, or URLs on the run's object store
+    by_scene: dict[str, dict[tuple[str, int], tuple[int, str]]] = {}
+    for key, value in objects.items():
+        by_scene.setdefault(key[0], {})[key] = value
+    tasks, first_image_id = [], 0
+    for name, video in videos.items():
+        tasks.append(VideoTask(stores[(chosen, name)], {folder: stores[(other, name)] for folder, other in lit.items()},
+                               by_scene.get(video["scene_id"], {}), staging, first_image_id, int(video["frames"])))
+        first_image_id += int(video["frames"])
+    return tasks
+
+
+def _export_video(task: VideoTask) -> VideoExport:
+    """Write one video's files (in this process or a worker) and return its entries."""
+    extra_rgb = {folder: open_video(store) for folder, store in task.extra_rgb.items()}
+    return VideoExporter(open_video(task.store), task.objects, task.split_folder, extra_rgb, task.first_image_id).run()
+
+
+def _export_videos(tasks: list[VideoTask]) -> Iterator[VideoExport]:
+    """Each video's entries in task order, on one process per available core when there are several videos.
+
+    Videos are independent and encoding a frame's JPEG and PNG files is the cost: in one process MVPd's 6 M
+    frames would take days of wall time (benchmarks/results/full_job_1pct.json). An export under
+    2 x FRAMES_PER_WORKER frames stays in this process. Workers are spawned, not forked (the caller may hold
+    threads), and results come back in order, so the split's JSON files are the same whatever the workers.
+    """
+    frames = sum(task.frames for task in tasks)
+    workers = min(len(tasks), len(os.sched_getaffinity(0)), max(1, frames // FRAMES_PER_WORKER))
+    if workers <= 1:
+        yield from map(_export_video, tasks)
+        return
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        try:
+            yield from pool.map(_export_video, tasks)
+        finally:
+            pool.shutdown(cancel_futures=True)
 
 
 def _release_objects(run: RunFolder) -> dict[tuple[str, int], tuple[int, str]]:
@@ -321,7 +375,7 @@ def _to_mvpd_ids(panoptic: np.ndarray, scene: str, video: str, objects: dict[tup
 
     Objects without an mpcat40 category become void, as in MVPd (its formatter skips category 0).
     """
-    unique, inverse = np.unique(panoptic, return_inverse=True)
+    unique, inverse = unique_with_inverse(panoptic)
     mapped = np.zeros(len(unique), dtype=np.uint32)
     present: dict[int, dict[str, Any]] = {}
     for index, object_id in enumerate(int(v) for v in unique):

@@ -42,7 +42,7 @@ from pipeline.io.mvpd.layout import (
     require,
 )
 from pipeline.io.mvpd.split_files import read_split_flags
-from pipeline.io.segments import DenseLabels, FrameSegments, frame_segments
+from pipeline.io.segments import DenseLabels, FrameSegments, frame_segments, unique_with_inverse
 from pipeline.io.tables import spec, to_table
 from pipeline.io.zarr_video import VideoWriter
 from pipeline.runtime.executor import ProgressCallback, StagePlan, StageReport, run_stage
@@ -456,7 +456,7 @@ class VideoImporter:
 
     def _object_ids(self, segment_ids: np.ndarray, path: Path) -> np.ndarray:
         """PNG segment ids -> our object ids (the HM3DSem colour), through the video's instance_id_map."""
-        unique, inverse = np.unique(segment_ids, return_inverse=True)
+        unique, inverse = unique_with_inverse(segment_ids)
         mapped = np.zeros(len(unique), np.uint32)
         for index, segment in enumerate(int(s) for s in unique):
             if segment == 0:
