@@ -13,7 +13,7 @@ import hashlib
 import json
 import math
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -29,6 +29,21 @@ class Strict(BaseModel):
     """Base: unknown keys are errors, instances are immutable, every number is finite (`.inf`/`.nan` refused)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    # Fields added after runs already existed: left out of `hashed()` while they hold their default, so that
+    # an upgrade leaves the units of an existing run up to date when nothing they do has changed.
+    added_later: ClassVar[tuple[str, ...]] = ()
+
+    def hashed(self) -> dict[str, Any]:
+        """The model as JSON for a unit's config hash: `model_dump(mode="json")` less the `added_later` fields
+        that hold their default (nested models likewise)."""
+        data = self.model_dump(mode="json")
+        for name, field in type(self).model_fields.items():
+            value = getattr(self, name)
+            if name in self.added_later and value == field.get_default(call_default_factory=True):
+                del data[name]
+            elif isinstance(value, Strict):
+                data[name] = value.hashed()
+        return data
 
 
 # ----------------------------------------------------------------------------------------- scenes
@@ -73,6 +88,7 @@ class MeshFolderSource(Strict):
                          "0.0254 for inches (a scene over 1 km or under 1 m across gets a warning naming this)")
     keep_uniform_color: bool = Field(False, description="a mesh whose faces all carry one colour (every material "
                                      "the same default grey) is painted a palette colour per object; true keeps its colour")
+    added_later = ("scale", "keep_uniform_color")
 
 
 class ScanDatasetSource(Strict):
@@ -121,6 +137,7 @@ class SceneSources(Strict):
     scannet: ScanNetSource | None = None
     replica: ReplicaSource | None = None
     mvpd: MvpdReleaseSource | None = Field(None, description="an imported MVPd release split (import-mvpd)")
+    added_later = ("matterport3d", "scannet", "replica")
 
     @model_validator(mode="after")
     def _at_least_one(self) -> "SceneSources":
@@ -221,6 +238,7 @@ class Illumination(Strict):
                             "normal-incidence reflectance 0.08 * specular")
     roughness: float = Field(0.5, ge=0.01, le=1, description="principled: Blender's roughness (GGX alpha = roughness^2)")
     indirect: IndirectLight = IndirectLight()
+    added_later = ("material", "specular", "roughness", "indirect")
 
     @model_validator(mode="after")
     def _spot_has_power(self) -> "Illumination":

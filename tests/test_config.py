@@ -128,3 +128,22 @@ def test_one_percent_job_is_mvpd_at_one_percent():
     assert split is not None and split.zero_shot.clusters == 20
     fractions = split.scenes.fractions
     assert (fractions.train * scenes, fractions.val * scenes, fractions.test * scenes) == (8, 1, 1)  # 144/18/18
+
+
+def test_fields_added_later_leave_the_hashes_of_existing_jobs_as_they_were():
+    """Units of a run made before scan sources, materials and indirect light existed stay up to date after the
+    upgrade when the job uses none of them: their hashed settings are those of fd326c4, literally."""
+    from pipeline.config import Illumination, MeshFolderSource
+
+    job = load_job(Path(__file__).resolve().parents[1] / "jobs" / "demo.yaml")
+    assert job.scenes.hashed() == {"procedural": {"count": 3, "seed": 0, "detail": 0.1, "min_rooms": 3, "max_rooms": 8,
+                                                  "floors": 1}, "hm3dsem": None, "meshes": None, "mvpd": None}
+    assert [e.illumination.hashed() for e in job.embodiments] == [
+        {"kind": "ambient", "power": 0.0, "cone": 180.0, "blend": 1.0},
+        {"kind": "spot", "power": 20.0, "cone": 180.0, "blend": 1.0}]
+    assert MeshFolderSource(root=Path("/scans")).hashed() == {"root": "/scans", "pattern": "*", "labels": "auto",
+                                                             "up_axis": "y"}
+    # A later field that is used is hashed, so changing it reruns what it changes.
+    principled = Illumination(kind="spot", power=20.0, material="principled").hashed()
+    assert principled["material"] == "principled" and "indirect" not in principled
+    assert MeshFolderSource(root=Path("/scans"), scale=0.01).hashed()["scale"] == 0.01

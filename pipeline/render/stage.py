@@ -72,7 +72,7 @@ class RgbdRenderer(Stage):
                 "trajectory": _plain(row),
                 # Only what changes pixels: a new light or sensor reruns that embodiment's videos only.
                 "sensor": embodiment.sensor.model_dump(mode="json"),
-                "illumination": embodiment.illumination.model_dump(mode="json"),
+                "illumination": embodiment.illumination.hashed(),
             }))
         return sorted(units, key=lambda unit: unit.id)
 

@@ -35,7 +35,7 @@ class SceneSharder(Stage):
 
     def settings(self) -> dict[str, Any]:
         """The job's scene sources: a changed source (detail, seed, root) reshards."""
-        return {"scenes": self.job.scenes.model_dump(mode="json")}
+        return {"scenes": self.job.scenes.hashed()}
 
     def run_unit(self, unit: Unit, context: UnitContext) -> UnitResult:
         """Load the scene (raising SceneError if unusable) and write its `scenes` and `objects` rows."""
