@@ -13,7 +13,7 @@ import time
 import traceback
 from pathlib import Path
 
-from pipeline.runtime.failures import is_no_space, no_space_line
+from pipeline.runtime.failures import failure_line, is_no_space
 from pipeline.runtime.lock import LeaseLostError
 from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
@@ -56,7 +56,7 @@ def execute_unit(stage: Stage, run_root: str, unit: Unit, attempt: int, fence: s
     except Exception as error:  # noqa: BLE001 - every unit error is recorded, none escapes to Ray
         logger.error("failed: %s\n%s", error, traceback.format_exc())
         # A full disk is said with the path and the free space (the status table keeps it as the reason).
-        message = (no_space_line(getattr(error, "filename", None) or run.root) if is_no_space(error)
+        message = (failure_line(error, str(run.root)) if is_no_space(error)
                    else " ".join(str(error).split()) or type(error).__name__)
         return UnitOutcome(stage.name, unit.id, "failed", attempt, type(error).__name__, message, relative_log,
                            time.perf_counter() - started)

@@ -16,6 +16,7 @@ import time
 from typing import Callable, Literal
 
 from pipeline.runtime.attempt import append_to_unit_log, execute_unit
+from pipeline.runtime.failures import error_text
 from pipeline.runtime.lock import LeaseLostError
 from pipeline.runtime.object_store import storage_environment, use_storage_environment
 from pipeline.runtime.run_folder import RunFolder
@@ -167,7 +168,7 @@ def _collect(ref: object, stage: Stage, unit: Unit, attempt: int, run: RunFolder
         lost = getattr(error, "cause", None)
         if isinstance(lost, LeaseLostError):  # the unit's fence found another driver on the run: stop
             raise LeaseLostError(str(lost)) from None
-        message = " ".join(str(error).split())[:300]
+        message = error_text(error, 300)
         # Only a lost worker or node is retried by Ray (max_retries times); any other failure (a runtime
         # env or an argument that could not be set up, a cancelled task) ended the first try.
         retried = isinstance(error, (WorkerCrashedError, OutOfMemoryError, NodeDiedError))

@@ -34,6 +34,11 @@ def storage_errors() -> tuple[type[BaseException], ...]:
     return tuple(found)
 
 
+def error_text(error: BaseException, limit: int = 200) -> str:
+    """An error's text on one line (at most `limit` characters), or its type's name when it has none."""
+    return " ".join(str(error).split())[:limit] or type(error).__name__
+
+
 def is_no_space(error: BaseException) -> bool:
     return isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT)
 
@@ -54,7 +59,7 @@ def failure_line(error: BaseException, where: str) -> str:
     """One line for a storage failure met while running `where` (a run folder or URL)."""
     if is_no_space(error):
         return no_space_line(getattr(error, "filename", None) or where)
-    text = " ".join(str(error).split())[:300] or type(error).__name__
+    text = error_text(error, 300)
     if isinstance(error, OSError) and not type(error).__module__.startswith(("s3fs", "gcsfs", "botocore")):
         return f"{getattr(error, 'filename', None) or where}: {text}; the driver stopped (finished units are kept)"
     return (f"{where}: the object store failed ({type(error).__name__}: {text}); the driver stopped and released "

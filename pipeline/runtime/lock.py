@@ -38,6 +38,8 @@ from typing import TYPE_CHECKING, Iterator
 
 import psutil
 
+from pipeline.runtime.failures import error_text
+
 if TYPE_CHECKING:
     from pipeline.runtime.object_store import RunStore
     from pipeline.runtime.run_folder import RunFolder
@@ -46,6 +48,7 @@ log = logging.getLogger(__name__)
 
 HEARTBEAT_SECONDS = 20.0
 STALE_SECONDS = 120.0
+_LAPSED = "no heartbeat reached the run lock for {:.0f} s"
 # First wait before a failed heartbeat is tried again; doubled on each failure, at most HEARTBEAT_SECONDS.
 RETRY_SECONDS = 1.0
 
@@ -112,19 +115,22 @@ class Lease:
             except Exception as error:  # noqa: BLE001 - a store raises its own types (botocore's, aiohttp's)
                 failures += 1
                 log.warning("%s: heartbeat of the run lock failed (%s: %s); trying again", self.where,
-                            type(error).__name__, " ".join(str(error).split())[:200])
+                            type(error).__name__, error_text(error))
                 if self._lapsed():
-                    self.lost = f"no heartbeat reached the run lock for {lease_seconds():.0f} s"
+                    self.lost = _LAPSED.format(lease_seconds())
                     log.error("%s: %s", self.where, self.lost)
                     return
 
     def _lapsed(self) -> bool:
         return time.monotonic() - self._renewed > lease_seconds()
 
+    def _is_mine(self, holder: dict | None) -> bool:
+        return holder is not None and holder.get("owner") == self.owner
+
     def check(self) -> None:
         """Raise LeaseLostError (one line) when this driver must stop committing (the driver's own fence)."""
         if self.lost is None and self._lapsed():
-            self.lost = f"no heartbeat reached the run lock for {lease_seconds():.0f} s"
+            self.lost = _LAPSED.format(lease_seconds())
         if self.lost is not None:
             raise LeaseLostError(lease_lost_message(self.where, self.lost))
 
@@ -195,9 +201,6 @@ class RunLock(Lease):
 
     def _record(self) -> dict:
         return {**_record(self._started), "owner": self.owner}
-
-    def _is_mine(self, holder: dict | None) -> bool:
-        return holder is not None and holder.get("owner") == self.owner
 
     def _try_create(self) -> bool:
         """Publish the lock with its whole content in one step; False when a lock already exists."""
@@ -292,7 +295,7 @@ class RemoteRunLock(Lease):
                 self.store.remove_object(LOCK_KEY, self._tag)
             except Exception as error:  # noqa: BLE001 - botocore's and aiohttp's errors are no OSError
                 log.warning("%s: could not remove the run lock (%s: %s)", self.store.url, type(error).__name__,
-                            " ".join(str(error).split())[:200])
+                            error_text(error))
             self._tag = None
 
     def _refresh(self) -> bool:
@@ -306,9 +309,6 @@ class RemoteRunLock(Lease):
             tag = found.tag  # our earlier write landed, its answer was lost and the retry was refused
         self._tag = tag
         return True
-
-    def _is_mine(self, holder: dict | None) -> bool:
-        return holder is not None and holder.get("owner") == self.owner
 
 
 def run_lock(run: "RunFolder") -> RunLock | RemoteRunLock:

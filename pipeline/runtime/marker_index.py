@@ -33,6 +33,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from pipeline.runtime.failures import error_text
 from pipeline.runtime.markers import RUN_PATH, STATE, ColumnarManifest, Marker, marker_problem, parse_marker
 from pipeline.runtime.object_store import store_of
 
@@ -242,7 +243,7 @@ def _read_rows(folder: MarkerFolder) -> dict[str, tuple[str, Marker | None]]:
         return _decode(data)
     except (pa.ArrowException, OSError, ValueError, TypeError, KeyError) as error:
         log.warning("marker index %s ignored and rebuilt: %s", getattr(folder, "folder", folder),
-                    " ".join(str(error).split())[:200])
+                    error_text(error))
         return {}
 
 

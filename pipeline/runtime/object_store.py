@@ -30,6 +30,7 @@ from typing import Any, NamedTuple
 import fsspec
 import fsspec.asyn
 from fsspec.implementations.memory import MemoryFileSystem
+from pipeline.runtime.failures import error_text
 
 log = logging.getLogger(__name__)
 
@@ -146,16 +147,16 @@ class RunStore:
             if not isinstance(self.fs, MemoryFileSystem):  # the memory store of the tests has no buckets
                 self._probe().info(bucket)
         except PermissionError as error:
-            raise StoreError(f"{self.url}: access refused ({_one_line(error)}); check the credentials in the "
+            raise StoreError(f"{self.url}: access refused ({error_text(error)}); check the credentials in the "
                              "environment (AWS_ACCESS_KEY_ID/AWS_SECRET_ACCESS_KEY) or ~/.aws") from None
         except FileNotFoundError:
             raise StoreError(f"{self.url}: bucket {bucket!r} does not exist; create it or fix the URL") from None
         except (OSError, ValueError) as error:
-            raise StoreError(f"{self.url}: the object store cannot be reached ({_one_line(error)}); check the "
+            raise StoreError(f"{self.url}: the object store cannot be reached ({error_text(error)}); check the "
                              "endpoint (AWS_ENDPOINT_URL) and the network") from None
         except Exception as error:  # noqa: BLE001 - botocore raises its own types (EndpointConnectionError, ...)
             raise StoreError(f"{self.url}: the object store cannot be used ({type(error).__name__}: "
-                             f"{_one_line(error)}); check the endpoint and the credentials") from None
+                             f"{error_text(error)}); check the endpoint and the credentials") from None
 
     def _probe(self) -> fsspec.AbstractFileSystem:
         """A filesystem like ours that fails fast: one try, a short connect timeout (S3 only; else ours)."""
@@ -305,10 +306,6 @@ class RunStore:
         """Delete many keys in one batched call (S3 DeleteObjects takes up to 1000 per request); raises on failure."""
         if relatives:
             self.fs.rm([self.key(relative) for relative in relatives])
-
-
-def _one_line(error: BaseException) -> str:
-    return " ".join(str(error).split())[:200] or type(error).__name__
 
 
 class StoredObject(NamedTuple):

@@ -30,6 +30,7 @@ import yaml
 
 from pipeline.config import ConfigError, Job, job_from_resolved
 from pipeline.runtime.lock import Lease, check_fence, run_lock
+from pipeline.runtime.failures import error_text
 from pipeline.runtime import markers as marker_files
 from pipeline.runtime.markers import (  # noqa: F401 - Marker and atomic_write_text are imported from here too
     DATASET_INDEX,
@@ -328,7 +329,7 @@ class RunFolder:
             self.store.put_file(self.log_path(stage, unit), f"logs/{stage}/{unit}.log")
         except Exception as error:  # noqa: BLE001 - an outage raises botocore's or aiohttp's errors, no OSError
             log.warning("%s: log of %s/%s not uploaded (%s: %s)", self.location, stage, unit, type(error).__name__,
-                        " ".join(str(error).split())[:200])
+                        error_text(error))
 
     def commit(self, staging: Path, outputs: list[str], previous_outputs: list[str]) -> None:
         """Move the staged `outputs` (files or Zarr stores) into place, replacing earlier versions.

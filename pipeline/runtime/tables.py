@@ -21,6 +21,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from pipeline.runtime.failures import error_text
 from pipeline.runtime.markers import Damage, Marker, record_damage, stage_markers, stages_writing, unit_damage, unit_marker
 from pipeline.runtime.object_store import RunStore, store_of
 
@@ -207,7 +208,7 @@ def read_dataset(run_root: Path, dataset: str, warn: bool = True) -> pa.Table:
             tables.append(read_part(part.path, schema, store))
         except (pa.ArrowException, OSError) as error:
             log.warning("%s: unreadable Parquet part (%s); skipped, rerun stage %s to rewrite it",
-                        part.path, " ".join(str(error).split())[:200], part.stage)
+                        part.path, error_text(error), part.stage)
             marker = unit_marker(Path(run_root), part.stage, part.unit)
             if marker is not None:
                 record_damage(Path(run_root), marker, [Damage(part.stage, part.unit, part.relative, "is unreadable Parquet")])
