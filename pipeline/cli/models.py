@@ -82,9 +82,9 @@ def register(app: typer.Typer) -> None:
                 config = config.model_copy(update={"self_prompting": True})
             videos = split_videos(run, split)
             with stage_progress() as observer:
-                report = predict_run(run, check_out_location(out), config, embodiment, videos, split if videos is not None else NO_SPLIT,
-                                     force=all_videos, address=address, on_start=observer.on_stage_start,
-                                     on_unit=observer.on_unit)
+                report = predict_run(run, check_out_location(out), config, embodiment, videos,
+                                     split if videos is not None else NO_SPLIT, force=all_videos, address=address,
+                                     on_start=observer.on_stage_start, on_unit=observer.on_unit)
                 if observer.on_stage_end is not None:
                     observer.on_stage_end(report)
         except _input_errors() as error:
