@@ -20,7 +20,7 @@ from pathlib import Path
 from pipeline.config import Job
 from pipeline.io.dataset_stats import dataset_stats
 from pipeline.io.query import connect
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.runner import submit
 
 OBJECTS_PER_VIDEO_TARGET = (50, 150)
@@ -48,7 +48,7 @@ def main() -> None:
     """Render the job, print objects per video and per frame against the targets, write JSON."""
     with tempfile.TemporaryDirectory() as scratch:
         started = time.perf_counter()
-        report = submit(Job.model_validate(JOB), Path(scratch) / "run")
+        report = submit(Job.model_validate(JOB), RunFolder.prepare(Path(scratch) / "run"))
         seconds = time.perf_counter() - started
         run = RunFolder.open(Path(scratch) / "run")
         stats = dataset_stats(run)

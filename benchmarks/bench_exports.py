@@ -33,7 +33,7 @@ from pipeline.io.coco import CocoExporter  # noqa: E402
 from pipeline.io.reader import load_video  # noqa: E402
 from pipeline.io.training_export import ExportOptions, export_training_data, frame_objects, unsplit  # noqa: E402
 from pipeline.io.yolo import YoloExporter  # noqa: E402
-from pipeline.runtime.run_folder import RunFolder  # noqa: E402
+from pipeline.store.run_folder import RunFolder  # noqa: E402
 from tests.render.tiny_run import render_tiny_run  # noqa: E402
 from tests.render.tiny_scenes import embodiment  # noqa: E402
 
@@ -52,7 +52,7 @@ def render_run(root: Path) -> RunFolder:
 def walk(run: RunFolder) -> int:
     """The peer: read every frame's RGB and panoptic and find its objects, write nothing. Returns frames."""
     frames = 0
-    for embodiment_name, name in unsplit(run.root)["all"]:
+    for embodiment_name, name in unsplit(run)["all"]:
         video = load_video(run, name, embodiment_name)
         for t in range(video.frames):
             np.asarray(video.rgb[t])
@@ -86,7 +86,7 @@ def main() -> None:
             def action() -> int:
                 out = Path(folder) / "out"
                 shutil.rmtree(out, ignore_errors=True)
-                summary = export_training_data(run.root, out, unsplit(run.root), exporter, ExportOptions())
+                summary = export_training_data(run, out, unsplit(run), exporter, ExportOptions())
                 return sum(summary.frames.values())
             return action
 

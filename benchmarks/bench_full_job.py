@@ -46,7 +46,7 @@ import psutil  # noqa: E402
 
 from benchmarks.bench_scaling import (  # noqa: E402
     MVPD_FRAMES, MVPD_VIDEOS, RESULTS as SCALING_RESULTS, job_core_seconds, on_nodes, stage_rates, summary)
-from pipeline.runtime.run_folder import RunFolder  # noqa: E402
+from pipeline.store.run_folder import RunFolder  # noqa: E402
 
 RESULTS = REPO / "benchmarks" / "results" / "full_job_1pct.json"
 JOB = REPO / "jobs" / "mvpd-1pct.yaml"
@@ -190,7 +190,7 @@ def first_test_video(run_dir: Path) -> str:
     """A test video the report scored (the split's first accepted one), for `mvpd view`."""
     from pipeline.split.selection import accepted_videos
 
-    accepted = accepted_videos(run_dir, "test") or []
+    accepted = accepted_videos(RunFolder(run_dir), "test") or []
     names = sorted(name for owner, name in accepted if owner == EMBODIMENT)
     if not names:
         raise RuntimeError(f"{run_dir}: the test split has no accepted {EMBODIMENT} video to view")
@@ -249,7 +249,7 @@ def run_size(run_dir: Path) -> dict[str, Any]:
     run = RunFolder.open(run_dir)
     videos = run.read("videos")
     frames_of = dict(zip(videos.column("video_name").to_pylist(), videos.column("frames").to_pylist()))
-    test = sorted(name for owner, name in accepted_videos(run_dir, "test") or [] if owner == EMBODIMENT)
+    test = sorted(name for owner, name in accepted_videos(run, "test") or [] if owner == EMBODIMENT)
     rendered = sum(f.size for m in run.markers("render").values() for f in m.files)
     frames = sum(frames_of.values())
     return {"scenes": run.read("scenes").num_rows, "paths": run.read("trajectories").num_rows // 2,

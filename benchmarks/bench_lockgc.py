@@ -48,7 +48,7 @@ def lock_cycle_seconds(make_lock, cycles: int) -> float:
 
 def plant_run(store, objects: int, attempts: int) -> None:
     """One committed unit (a marker naming one attempt) and `objects` dead objects under `attempts` prefixes."""
-    from pipeline.runtime.markers import STATE
+    from pipeline.store.names import STATE
 
     live = "_attempts/bench/live/otherhost.1.1/part.bin"
     store.put_text(live, "live")
@@ -71,10 +71,10 @@ def main() -> None:
                        "AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}", "AWS_DEFAULT_REGION": "us-east-1"})
     import s3fs
 
-    from pipeline.runtime.garbage import collect_garbage
-    from pipeline.runtime.lock import RemoteRunLock, RunLock
-    from pipeline.runtime.object_store import RunStore
-    from pipeline.runtime.run_folder import RunFolder
+    from pipeline.store.garbage import collect_garbage
+    from pipeline.store.lock import RemoteRunLock, RunLock
+    from pipeline.store.remote import RunStore
+    from pipeline.store.run_folder import RunFolder
 
     s3fs.S3FileSystem().mkdir(BUCKET)
     remote_lock, local_lock, dry, real = [], [], [], []

@@ -42,7 +42,7 @@ from pipeline.models.geometric import GeometricSegmenter
 from pipeline.models.predict import ModelConfig, iter_video_frames, predict_run
 from pipeline.models.segmenter import FrameInput, Segmenter
 from pipeline.models.report import ModelScores, video_height_m
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.runner import submit
 
 RESULTS = Path(__file__).resolve().parent / "results" / "models.json"
@@ -77,7 +77,7 @@ def spread(values: list[float]) -> dict[str, float]:
 def render_run(run_dir: Path) -> float:
     """Shard, plan and render the job into `run_dir` (reused when already done); returns seconds."""
     started = time.perf_counter()
-    report = submit(Job.model_validate(JOB), run_dir)
+    report = submit(Job.model_validate(JOB), RunFolder.prepare(run_dir))
     if report.failed:
         raise SystemExit(f"render failed for {report.failed} units; see mvpd status {run_dir}")
     return time.perf_counter() - started
@@ -89,10 +89,10 @@ def quality(run_dir: Path, work: Path) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for label, config in MODELS.items():
         folder = work / "quality" / label
-        report = predict_run(run_dir, folder, config)
+        report = predict_run(RunFolder.open(run_dir), folder, config)
         if report.failed:
             raise SystemExit(f"{label}: predict failed: {report.failed[0].message}")
-        result = evaluate_run(run_dir, folder)
+        result = evaluate_run(RunFolder.open(run_dir), folder)
         scores = ModelScores(label, dict(result.per_video), protocol)
         per_height = {}
         for height in sorted({video_height_m(k) for k in scores.per_video}, reverse=True):
@@ -164,11 +164,11 @@ def predict_speed(run_dir: Path, work: Path) -> dict[str, Any]:
     out: dict[str, Any] = {"videos": [n for _, n in chosen], "frames": frames}
     labels = ("geometric", "geometric+sp")
     rates: dict[str, list[float]] = {label: [] for label in labels}
-    predict_run(run_dir, work / "speed" / "warm-up", MODELS["geometric"], videos=[n for _, n in chosen])  # starts Ray
+    predict_run(RunFolder.open(run_dir), work / "speed" / "warm-up", MODELS["geometric"], videos=[n for _, n in chosen])  # starts Ray
     for _ in range(REPEATS):
         for label in labels:  # interleaved, so both see the same drift in the machine's load
             started = time.perf_counter()
-            report = predict_run(run_dir, work / "speed" / label, MODELS[label], videos=[n for _, n in chosen],
+            report = predict_run(RunFolder.open(run_dir), work / "speed" / label, MODELS[label], videos=[n for _, n in chosen],
                                  force=True)
             assert not report.failed
             rates[label].append(frames / (time.perf_counter() - started))

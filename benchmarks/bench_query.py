@@ -23,8 +23,8 @@ import pyarrow as pa
 
 from pipeline.io.query import connect
 from pipeline.io.tables import spec
-from pipeline.runtime.executor import commit_tables
-from pipeline.runtime.run_folder import RunFolder, atomic_write_text
+from pipeline.store.names import atomic_write_text
+from pipeline.store.run_folder import RunFolder
 
 RESULTS = Path(__file__).resolve().parent / "results" / "query.json"
 PARTS, ROWS_PER_PART, REPEATS = 200, 10_000, 3
@@ -49,7 +49,7 @@ def write_run(root: Path) -> RunFolder:
             "area": rng.integers(10, 5000, n), "x0": np.zeros(n, np.int32), "y0": np.zeros(n, np.int32),
             "x1": np.full(n, 63, np.int32), "y1": np.full(n, 47, np.int32),
         }
-        commit_tables(run, "render", f"v-{part:05d}", {"segments": pa.Table.from_pydict(columns, schema=schema)})
+        run.commit_tables("render", f"v-{part:05d}", {"segments": pa.Table.from_pydict(columns, schema=schema)})
     return run
 
 

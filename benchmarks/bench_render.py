@@ -148,7 +148,7 @@ def planned_poses(frames: int, folder: Path) -> tuple[Scene, np.ndarray, str]:
     from pipeline.config import Job, PlanConfig, ProceduralSource, SceneSources
     from pipeline.render.stage import RgbdRenderer, read_poses
     from pipeline.runtime.executor import run_unit_locally
-    from pipeline.runtime.run_folder import RunFolder
+    from pipeline.store.run_folder import RunFolder
     from pipeline.stages import make_stage
 
     job = Job(name="bench-render", seed=0, embodiments=[Embodiment(name="bench", placements=[1.0])],

@@ -76,7 +76,7 @@ def evaluate_small(repeats: int, executor: str, work: Path) -> dict:
 def make_big_run(root: Path, gigabytes: float) -> int:
     """A run folder of committed random files (64 MiB each) with markers, as units would leave them."""
     from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources
-    from pipeline.runtime.run_folder import RunFolder
+    from pipeline.store.run_folder import RunFolder
 
     job = Job(name="big", scenes=SceneSources(procedural=ProceduralSource(count=1)), embodiments=[Embodiment(name="e")])
     run = RunFolder.create(root, job)

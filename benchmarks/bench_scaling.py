@@ -45,10 +45,11 @@ import ray  # noqa: E402
 import ray.cloudpickle  # noqa: E402
 
 from pipeline.config import Embodiment, Job, ProceduralSource, RenderConfig, SceneSources, load_job  # noqa: E402
-from pipeline.runtime.executor import code_version, plan_stage, run_stage  # noqa: E402
-from pipeline.runtime.marker_index import INDEX_NAME, index_stage  # noqa: E402
-from pipeline.runtime.markers import Marker, OutputFile, stage_markers, unit_damage, write_marker  # noqa: E402
-from pipeline.runtime.run_folder import RunFolder  # noqa: E402
+from pipeline.runtime.executor import plan_stage, run_stage
+from pipeline.store.markers import code_version
+from pipeline.store.marker_index import INDEX_NAME
+from pipeline.store.markers import Marker, OutputFile
+from pipeline.store.run_folder import RunFolder  # noqa: E402
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult  # noqa: E402
 
 RESULTS = REPO / "benchmarks" / "results" / "scaling.json"
@@ -231,9 +232,9 @@ def build_marked_run(root: Path, units: int, files: int) -> RunFolder:
         for number in range(files - 1):
             (folder / f"{number:03d}.bin").write_bytes(payload)
             manifest.append(OutputFile(f"noop/{unit}/{number:03d}.bin", len(payload), payload_crc))
-        write_marker(run.root, Marker(NoopStage.name, unit, "", code_version(), [f"noop/{unit}", manifest[0].path],
+        run.write_marker(Marker(NoopStage.name, unit, "", code_version(), [f"noop/{unit}", manifest[0].path],
                                       {"noop": 1}, 0.0, 1, "bench", float(index), {}, sorted(manifest, key=lambda f: f.path)))
-    index_stage(run.root, NoopStage.name)
+    run.index_markers(NoopStage.name)
     return run
 
 
@@ -242,9 +243,9 @@ def status_parts(run: RunFolder, repeats: int) -> dict[str, Any]:
     loads, checks = [], []
     for _ in range(repeats):
         began = time.perf_counter()
-        found = stage_markers(run.root, NoopStage.name)
+        found = run.markers(NoopStage.name)
         loads.append(time.perf_counter() - began)
-        checks.append(timed(lambda: unit_damage(run.root, found)))
+        checks.append(timed(lambda: run.damage(found)))
     return {"load_markers_s": summary(loads), "check_files_s": summary(checks)}
 
 

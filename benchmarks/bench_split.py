@@ -38,7 +38,7 @@ from pipeline.config import (Embodiment, Job, ProceduralSource, SceneSources, Sc
                              SplitConfig)
 from pipeline.io.tables import spec  # noqa: E402
 from pipeline.runtime.executor import run_stage  # noqa: E402
-from pipeline.runtime.run_folder import RunFolder  # noqa: E402
+from pipeline.store.run_folder import RunFolder  # noqa: E402
 from pipeline.split.stage import SplitAssigner, VideoScreener  # noqa: E402
 from pipeline.split.synthetic import mark_done, write_dataset  # noqa: E402
 

@@ -33,10 +33,10 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources  # noqa: E402
-from pipeline.runtime import marker_index, markers  # noqa: E402
-from pipeline.runtime.marker_index import INDEX_NAME, index_stage  # noqa: E402
-from pipeline.runtime.markers import Marker, OutputFile, code_version, stage_markers, write_marker  # noqa: E402
-from pipeline.runtime.run_folder import RunFolder  # noqa: E402
+from pipeline.store import marker_index, markers  # noqa: E402
+from pipeline.store.marker_index import INDEX_NAME
+from pipeline.store.markers import Marker, OutputFile, code_version
+from pipeline.store.run_folder import RunFolder  # noqa: E402
 
 RESULTS = REPO / "benchmarks" / "results" / "trust.json"
 STAGE = "render"
@@ -81,9 +81,9 @@ def build_markers(root: Path, units: int) -> RunFolder:
         files = [OutputFile(f"{store}/rgb/c/{number}", 100_000 + number, f"{number:08x}")
                  for number in range(FILES_PER_MARKER - len(parts))]
         files += [OutputFile(path, 4_000, "0badf00d") for path in parts]
-        write_marker(run.root, Marker(STAGE, video, "hash", code_version(), [store, *parts], {"videos": 1}, 1.0, 1,
+        run.write_marker(Marker(STAGE, video, "hash", code_version(), [store, *parts], {"videos": 1}, 1.0, 1,
                                       "bench", float(index), {}, sorted(files, key=lambda f: f.path)))
-    index_stage(run.root, STAGE)
+    run.index_markers(STAGE)
     return run
 
 
@@ -91,7 +91,7 @@ def marker_checks(units: int, repeats: int, workdir: Path) -> dict[str, Any]:
     run = build_markers(workdir / "markers", units)
     index = run.root / "_state" / STAGE / INDEX_NAME
     saved_index = index.read_bytes()
-    load = lambda: stage_markers(run.root, STAGE)  # noqa: E731
+    load = lambda: run.markers(STAGE)  # noqa: E731
     times: dict[str, list[float]] = {"index": [], "index_peer": [], "files": [], "files_peer": []}
     for _ in range(repeats):
         times["index"].append(timed(load))

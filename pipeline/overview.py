@@ -11,7 +11,7 @@ from pipeline.io.dataset_stats import dataset_stats, write_stats_picture
 from pipeline.io.reader import load_video
 from pipeline.plan.preview import write_plan_preview
 from pipeline.render.preview import write_preview
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 
 
 def write_overview(run: RunFolder, out: Path, scenes: int = 1) -> list[Path]:

@@ -26,10 +26,10 @@ from typing import Any, Callable
 import numpy as np
 
 from pipeline.io.reader import LoadedVideo, VideoNotFoundError, load_video
-from pipeline.io.tables import read_dataset
 from pipeline.scenes.categories import categories
 from pipeline.scenes.scans import palette_color
 from pipeline.scenes.scene import Scene
+from pipeline.store.run_folder import RunFolder
 
 LOG = logging.getLogger(__name__)
 VOID_COLOR = (0, 0, 0)
@@ -50,26 +50,26 @@ class WrittenRecording:
     objects: int
 
 
-def find_video(run_root: Path, name: str, embodiment: str | None) -> dict[str, Any]:
+def find_video(run: RunFolder, name: str, embodiment: str | None) -> dict[str, Any]:
     """The `videos` row of a video name (and embodiment); the name is looked up, never used as a path."""
-    rows = [r for r in read_dataset(run_root, "videos").select(["embodiment", "video_name", "scene_id"]).to_pylist()
+    rows = [r for r in run.read("videos").select(["embodiment", "video_name", "scene_id"]).to_pylist()
             if r["video_name"] == name and (embodiment is None or r["embodiment"] == embodiment)]
     if not rows:
-        raise VideoNotFoundError(f"{run_root}: no rendered video {name!r}"
+        raise VideoNotFoundError(f"{run.location}: no rendered video {name!r}"
                                  f"{f' of embodiment {embodiment!r}' if embodiment else ''}; "
-                                 f"`mvpd query {run_root} \"select embodiment, video_name from videos\"` lists them")
+                                 f"`mvpd query {run.location} \"select embodiment, video_name from videos\"` lists them")
     if len(rows) > 1:
-        raise VideoNotFoundError(f"{run_root}: video {name!r} exists for embodiments "
+        raise VideoNotFoundError(f"{run.location}: video {name!r} exists for embodiments "
                                  f"{', '.join(sorted(r['embodiment'] for r in rows))}; pass --embodiment")
     return rows[0]
 
 
-def _scene_of(run_root: Path, scene_id: str) -> Scene:
+def _scene_of(run: RunFolder, scene_id: str) -> Scene:
     from pipeline.scenes.sources import load_scene_row
 
-    rows = [r for r in read_dataset(run_root, "scenes").to_pylist() if r["scene_id"] == scene_id]
+    rows = [r for r in run.read("scenes").to_pylist() if r["scene_id"] == scene_id]
     if not rows:
-        raise RecordingError(f"{run_root}: scene {scene_id!r} of the video is not in the scenes table; rerun `shard`")
+        raise RecordingError(f"{run.location}: scene {scene_id!r} of the video is not in the scenes table; rerun `shard`")
     return load_scene_row(rows[0])
 
 
@@ -114,16 +114,16 @@ def class_ids(panoptic: np.ndarray, ids: np.ndarray) -> np.ndarray:
     return np.where(known, position + 1, 0).astype(np.uint16)
 
 
-def write_recording(run_root: Path, name: str, out: Path, embodiment: str | None = None, point_stride: int = 2,
+def write_recording(run: RunFolder, name: str, out: Path, embodiment: str | None = None, point_stride: int = 2,
                     on_frame: Callable[[int, int], None] | None = None) -> WrittenRecording:
     """Write the Rerun recording of one video (see module doc) to `out` (written beside, then renamed)."""
     try:
         import rerun as rr
     except ImportError:
         raise RecordingError("mvpd view needs rerun-sdk: pip install 'mvpd-pipeline[view]'") from None
-    row = find_video(run_root, name, embodiment)
-    video = load_video(run_root, row["video_name"], row["embodiment"])
-    scene = _scene_of(run_root, row["scene_id"])
+    row = find_video(run, name, embodiment)
+    video = load_video(run, row["video_name"], row["embodiment"])
+    scene = _scene_of(run, row["scene_id"])
     ids, classes = _class_table(video)
     out.parent.mkdir(parents=True, exist_ok=True)
     temporary = out.with_name(f".{out.name}.{os.getpid()}.tmp")

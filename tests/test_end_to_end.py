@@ -82,7 +82,7 @@ def test_the_generated_house_goes_through_every_stage(run):
 
 def test_stats_count_what_the_tables_hold_and_draw_them(run, tmp_path):
     from pipeline.io.dataset_stats import dataset_stats
-    from pipeline.runtime.run_folder import RunFolder
+    from pipeline.store.run_folder import RunFolder
 
     folder = RunFolder.open(run)
     found = dataset_stats(folder)
@@ -100,7 +100,7 @@ def test_stats_count_what_the_tables_hold_and_draw_them(run, tmp_path):
 
 def test_the_overview_draws_the_plan_every_video_of_a_trajectory_and_the_statistics(run, tmp_path):
     from pipeline.overview import write_overview
-    from pipeline.runtime.run_folder import RunFolder
+    from pipeline.store.run_folder import RunFolder
 
     pictures = write_overview(RunFolder.open(run), tmp_path)
     names = sorted(p.name for p in pictures)
@@ -112,7 +112,7 @@ def test_the_overview_draws_the_plan_every_video_of_a_trajectory_and_the_statist
 
 def test_stats_of_a_run_without_videos_is_a_one_line_error(tmp_path):
     from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources
-    from pipeline.runtime.run_folder import RunFolder
+    from pipeline.store.run_folder import RunFolder
 
     job = Job(name="empty", scenes=SceneSources(procedural=ProceduralSource(count=1)), embodiments=[Embodiment(name="cam")])
     RunFolder.create(tmp_path / "empty", job)

@@ -20,7 +20,7 @@ from typer.core import TyperGroup
 from pipeline.cli.out_paths import OutPathError
 from pipeline.runtime.executor import StagePlan, StageReport
 from pipeline.runtime.ray_session import got_sigterm
-from pipeline.runtime.run_folder import is_plain_name
+from pipeline.store.names import is_plain_name
 from pipeline.runtime.runner import Observer
 from pipeline.runtime.status import UnitOutcome
 

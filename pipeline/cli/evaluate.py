@@ -14,8 +14,8 @@ from pipeline.cli.out_paths import check_out_file, check_out_location
 from pipeline.cli.run_commands import EXECUTOR_HELP, ExecutorChoice
 from pipeline.config import ConfigError
 from pipeline.runtime.executor import StageOrderError
-from pipeline.runtime.lock import RunLockedError
-from pipeline.runtime.run_folder import RunFolderError
+from pipeline.store.lock import RunLockedError
+from pipeline.store.run_folder import RunFolder, RunFolderError
 
 INPUT_ERROR_TYPES = {"EvaluationInputError", "PredictionError", "MissingPredictionError", "GroundTruthError"}
 
@@ -72,9 +72,10 @@ def register(app: typer.Typer) -> None:
                     result.split = split
                 else:
                     assert run is not None
-                    if (run / "job.yaml").is_file() and not has_split(run):
+                    opened = RunFolder.open(run)
+                    if not has_split(opened):
                         console.print(f"{run}: no split stage in this run; scoring every video (zero-shot bucket empty)")
-                    result = evaluate_run(run, pred, embodiment, split=split, **common)  # type: ignore[arg-type]
+                    result = evaluate_run(opened, pred, embodiment, split=split, **common)  # type: ignore[arg-type]
         except (EvaluationInputError, ProtocolError, ConfigError, RunFolderError, RunLockedError, StageOrderError) as error:
             fail(str(error))
         for video, info in result.videos.items():

@@ -12,8 +12,8 @@ import typer
 from pipeline.cli.console import EXIT_FAILED, console, fail, stage_progress
 from pipeline.cli.out_paths import check_out_location, out_folder
 from pipeline.config import ConfigError
-from pipeline.runtime.lock import RunLockedError
-from pipeline.runtime.run_folder import RunFolderError
+from pipeline.store.lock import RunLockedError
+from pipeline.store.run_folder import RunFolder, RunFolderError
 
 
 def _input_errors() -> tuple[type[Exception], ...]:
@@ -26,7 +26,7 @@ def _input_errors() -> tuple[type[Exception], ...]:
             UnknownSplitError)
 
 
-def split_videos(run: Path, split: str | None) -> list[str] | None:
+def split_videos(run: RunFolder, split: str | None) -> list[str] | None:
     """Video names of `split` in the run (from its split stage), else None."""
     if split is None:
         return None
@@ -48,7 +48,7 @@ def demo_model_report(run_dir: Path, address: str | None) -> None:
 
     try:
         with stage_progress() as observer:
-            path = write_model_report(run_dir, DEMO_MODELS, address=address, observer=observer)
+            path = write_model_report(RunFolder.open(run_dir), DEMO_MODELS, address=address, observer=observer)
     except _input_errors() as error:
         fail(str(error))
     except ReportError as error:
@@ -80,9 +80,10 @@ def register(app: typer.Typer) -> None:
             config = load_model_file(model_file) if model_file is not None else ModelConfig(name=model or "")
             if self_prompting:
                 config = config.model_copy(update={"self_prompting": True})
-            videos = split_videos(run, split)
+            source = RunFolder.open(run)
+            videos = split_videos(source, split)
             with stage_progress() as observer:
-                report = predict_run(run, check_out_location(out), config, embodiment, videos,
+                report = predict_run(source, check_out_location(out), config, embodiment, videos,
                                      split if videos is not None else NO_SPLIT, force=all_videos, address=address,
                                      on_start=observer.on_stage_start, on_unit=observer.on_unit)
                 if observer.on_stage_end is not None:
@@ -108,10 +109,11 @@ def register(app: typer.Typer) -> None:
 
         specs = [m.strip() for m in models.split(",") if m.strip()]
         try:
-            videos = split_videos(run, split)
+            opened = RunFolder.open(run)
+            videos = split_videos(opened, split)
             with out_folder(out, "mvpd report") if out is not None else nullcontext(None) as target, \
                     stage_progress() as observer:
-                path = write_model_report(run, specs, target, embodiment, videos,
+                path = write_model_report(opened, specs, target, embodiment, videos,
                                           split if videos is not None else NO_SPLIT, address=address, observer=observer)
         except _input_errors() as error:
             fail(str(error))

@@ -16,8 +16,8 @@ from pipeline.cli.run_commands import EXECUTOR_HELP, ExecutorChoice
 from pipeline.config import ConfigError
 from pipeline.io.mvpd import (MvpdExportError, MvpdFormatError, MvpdImportError, export_release, export_release_splits,
                               import_release)
-from pipeline.runtime.lock import RunLockedError
-from pipeline.runtime.run_folder import RunFolder, RunFolderError
+from pipeline.store.lock import RunLockedError
+from pipeline.store.run_folder import RunFolder, RunFolderError
 
 EXPORT = "mvpd export"
 USAGE_ERRORS = (MvpdFormatError, MvpdExportError, MvpdImportError, ConfigError, RunFolderError, RunLockedError,
@@ -78,11 +78,12 @@ def export_command(
         _training_export(run_dir, coco, yolo, mvpd, every, categories, drop_stuff, embodiment, overwrite)
         return
     try:
+        run = RunFolder.open(run_dir)
         with out_folder(mvpd, EXPORT, "--mvpd") as root, _video_progress("export") as (on_start, on_video):
-            if split is None and has_split(run_dir):
-                summaries = export_release_splits(run_dir, root, embodiment, overwrite, on_video=on_video, on_start=on_start)
+            if split is None and has_split(run):
+                summaries = export_release_splits(run, root, embodiment, overwrite, on_video=on_video, on_start=on_start)
             else:
-                summaries = [export_release(run_dir, root, split or "test", embodiment, overwrite, on_video=on_video,
+                summaries = [export_release(run, root, split or "test", embodiment, overwrite, on_video=on_video,
                                             on_start=on_start)]
     except USAGE_ERRORS as error:
         fail(str(error))
@@ -109,12 +110,12 @@ def _training_export(run_dir: Path, coco: Optional[Path], yolo: Optional[Path], 
     out, exporter, option = (coco, CocoExporter, "--coco") if coco is not None else (yolo, YoloExporter, "--yolo")
     options = ExportOptions(every, categories, drop_stuff, embodiment, overwrite)  # type: ignore[arg-type]
     try:
-        RunFolder.open(run_dir)
-        splits = run_splits(lambda name: accepted_videos(run_dir, name))
+        run = RunFolder.open(run_dir)
+        splits = run_splits(lambda name: accepted_videos(run, name))
         has_split = splits is not None
-        splits = splits if splits is not None else unsplit(run_dir)
+        splits = splits if splits is not None else unsplit(run)
         with out_folder(out, EXPORT, option) as folder, _video_progress("export") as (on_start, on_video):
-            summary = export_training_data(run_dir, folder, splits, exporter, options, on_start=on_start,
+            summary = export_training_data(run, folder, splits, exporter, options, on_start=on_start,
                                            on_video=on_video)
     except (TrainingExportError, *USAGE_ERRORS) as error:
         fail(str(error))

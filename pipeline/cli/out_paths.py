@@ -13,8 +13,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from pipeline.runtime.markers import STATE
-from pipeline.runtime.run_folder import JOB_FILE
+from pipeline.store.names import JOB_FILE, STATE
 
 TAG = ".mvpd-out"  # in a folder output: the command that wrote it
 

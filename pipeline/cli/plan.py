@@ -28,7 +28,7 @@ def preview(
     from pipeline.config import ConfigError
     from pipeline.plan.navigable import NavigableAreaError
     from pipeline.plan.preview import PlanPreviewError, write_plan_preview
-    from pipeline.runtime.run_folder import RunFolder, RunFolderError
+    from pipeline.store.run_folder import RunFolder, RunFolderError
     from pipeline.scenes.scene import SceneError
 
     try:
@@ -49,7 +49,7 @@ def report(
     from rich.table import Table
 
     from pipeline.plan.report import plan_reports
-    from pipeline.runtime.run_folder import RunFolder, RunFolderError
+    from pipeline.store.run_folder import RunFolder, RunFolderError
 
     try:
         reports = plan_reports(RunFolder.open(run))

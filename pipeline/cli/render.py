@@ -12,7 +12,7 @@ from pipeline.cli.console import console, fail
 from pipeline.cli.out_paths import out_folder
 from pipeline.io.reader import VideoNotFoundError
 from pipeline.io.zarr_video import ZARR_SCHEMA_VERSION
-from pipeline.runtime.run_folder import RunFolder, RunFolderError
+from pipeline.store.run_folder import RunFolder, RunFolderError
 
 
 class AnimationFormat(str, Enum):

@@ -16,9 +16,10 @@ from pipeline.config import ConfigError, Job, load_job
 from pipeline.io.dataset_stats import COMPARISON_COLUMNS, SPLIT_ROWS, StatsError, dataset_stats, write_stats_picture
 from pipeline.io.query import DEFAULT_TIMEOUT_S, QueryError, QueryTimeout, query, result_table, write_result
 from pipeline.runtime.executor import StageOrderError, StagePlan
-from pipeline.runtime.failures import RunStoppedError
-from pipeline.runtime.lock import RunLockedError
-from pipeline.runtime.run_folder import RunFolder, RunFolderError
+from pipeline.store.failures import RunStoppedError, stop_on_storage_failure
+from pipeline.store.lock import RunLockedError
+from pipeline.store.remote import remote_url
+from pipeline.store.run_folder import RunFolder, RunFolderError
 from pipeline.runtime.runner import JobReport, Observer, rerun, submit
 from pipeline.stages import JOB_STAGES, STAGE_CLASSES
 
@@ -100,8 +101,8 @@ def submit_command(
     try:
         job = load_checked_job(job_file)
         with stage_progress() as observer:
-            report = submit(job, run_dir or Path("runs") / job.name, chosen, address, _telling_damage(observer),
-                            executor.value)
+            report = submit(job, _opened(run_dir or Path("runs") / job.name, create=True), chosen, address,
+                            _telling_damage(observer), executor.value)
     except USAGE_ERRORS as error:
         fail(str(error))
     except RunStoppedError as error:  # the disk or the store failed under the driver: one line, exit 1
@@ -118,10 +119,10 @@ def demo(
 
     try:
         with stage_progress() as observer:
-            report = submit(load_checked_job(DEMO_JOB), run_dir, None, address, observer)
+            run = _opened(run_dir, create=True)
+            report = submit(load_checked_job(DEMO_JOB), run, None, address, observer)
         if report.failed:
             _finish(report)
-        run = RunFolder.open(run_dir)
         # Pictures are for looking at here: in the run folder, or for a run on object storage in its local folder.
         previews = run.root / "previews"
         pictures = write_overview(run, previews)
@@ -148,12 +149,19 @@ def rerun_command(
     _parse_stages(stage)
     try:
         with stage_progress() as observer:
-            report = rerun(run_dir, stage, all_units, address, _telling_damage(observer), executor.value)
+            report = rerun(_opened(run_dir), stage, all_units, address, _telling_damage(observer), executor.value)
     except USAGE_ERRORS as error:
         fail(str(error))
     except RunStoppedError as error:  # the disk or the store failed under the driver: one line, exit 1
         fail(str(error), EXIT_FAILED)
     _finish(report)
+
+
+def _opened(run_dir: Path, create: bool = False) -> RunFolder:
+    """The run folder a driver runs: created (or reopened) with `create`, else an existing one; a disk or a
+    store that fails under it stops here in one line (RunStoppedError)."""
+    with stop_on_storage_failure(remote_url(run_dir) or run_dir):
+        return RunFolder.prepare(run_dir) if create else RunFolder.open(run_dir)
 
 
 def _telling_damage(observer: Observer) -> Observer:
@@ -354,7 +362,7 @@ def gc_command(
     """Delete what dead attempts left (objects under `_attempts/` no marker names, old staging folders), under the run lock."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
-    from pipeline.runtime.garbage import GarbageCollectionError, collect_garbage
+    from pipeline.store.garbage import GarbageCollectionError, collect_garbage
 
     try:
         run = RunFolder.open(run_dir)

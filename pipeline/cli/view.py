@@ -31,15 +31,15 @@ def view(
 
     from pipeline.io.reader import VideoNotFoundError
     from pipeline.rerun_recording import RecordingError, write_recording
-    from pipeline.runtime.run_folder import RunFolder, RunFolderError
+    from pipeline.store.run_folder import RunFolder, RunFolderError
     from pipeline.scenes.scene import SceneError
 
     target = check_out_file(out if out is not None else Path(f"{video}.rrd"))
     try:
-        root = RunFolder.open(run).root
+        opened = RunFolder.open(run)
         with Progress(TextColumn("view"), BarColumn(), MofNCompleteColumn(), console=console, transient=True) as progress:
             task = progress.add_task("frames", total=None)
-            written = write_recording(root, video, target, embodiment, point_stride,
+            written = write_recording(opened, video, target, embodiment, point_stride,
                                       on_frame=lambda done, total: progress.update(task, completed=done, total=total))
     except (RunFolderError, VideoNotFoundError, RecordingError, SceneError) as error:
         fail(str(error))

@@ -21,7 +21,7 @@ from pipeline.evaluate.report import EvaluationResult, result_from_table
 from pipeline.evaluate.stage import EvaluationInputs, MvpdVsqEvaluator, VsqEvaluator
 from pipeline.runtime.executor import ProgressCallback, StagePlan, StageReport, run_stage
 from pipeline.runtime.executors import ExecutorName
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 
 StartCallback = Callable[[StagePlan], None]
 
@@ -47,7 +47,7 @@ def evaluation_job(mvpd_root: Path, split: str, overrides: dict[str, Any] | None
     return with_protocol(job, overrides)
 
 
-def evaluate_run(run_dir: str | Path, predictions: str | Path, embodiment: str | None = None,
+def evaluate_run(run: RunFolder, predictions: str | Path, embodiment: str | None = None,
                  allow_missing: bool = False, overrides: dict[str, Any] | None = None, force: bool = False,
                  address: str | None = None, on_start: StartCallback | None = None,
                  on_unit: ProgressCallback | None = None, split: str | None = None,
@@ -60,7 +60,6 @@ def evaluate_run(run_dir: str | Path, predictions: str | Path, embodiment: str |
     """
     from pipeline.split.selection import has_split
 
-    run = RunFolder.open(run_dir)
     job = with_protocol(run.job(), overrides)
     chosen = (split or "test") if has_split(run) else None
     inputs = EvaluationInputs(str(Path(predictions).resolve()), allow_missing, embodiment, split=chosen, videos=videos)

@@ -11,11 +11,14 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from pipeline.evaluate.errors import GroundTruthError
+
+if TYPE_CHECKING:
+    from pipeline.store.run_folder import RunFolder
 
 
 @dataclass(frozen=True)
@@ -189,32 +192,30 @@ class MvpdSplit:
         return by_scene
 
 
-def run_videos(run_root: Path, embodiment: str | None = None) -> list[VideoSpec]:
+def run_videos(run: RunFolder, embodiment: str | None = None) -> list[VideoSpec]:
     """The rendered videos of a run (`videos` table) as specs; every object non-zero-shot.
 
     Args:
-        run_root: the run folder.
+        run: the run folder.
         embodiment: keep only this embodiment's videos; required when the run has several.
     """
-    from pipeline.io.tables import read_dataset
-
-    table = read_dataset(run_root, "videos").to_pylist()
+    table = run.read("videos").to_pylist()
     if not table:
-        raise GroundTruthError(f"{run_root / 'videos'}: no rendered videos; run the render stage first (mvpd rerun RUN --stage render)")
+        raise GroundTruthError(f"{run.location}/videos: no rendered videos; run the render stage first (mvpd rerun RUN --stage render)")
     embodiments = sorted({row["embodiment"] for row in table})
     if embodiment is None and len(embodiments) > 1:
-        raise GroundTruthError(f"{run_root}: the run has embodiments {', '.join(embodiments)}; choose one with --embodiment")
+        raise GroundTruthError(f"{run.location}: the run has embodiments {', '.join(embodiments)}; choose one with --embodiment")
     if embodiment is not None and embodiment not in embodiments:
-        raise GroundTruthError(f"{run_root}: no videos of embodiment {embodiment!r}; the run has {', '.join(embodiments)}")
+        raise GroundTruthError(f"{run.location}: no videos of embodiment {embodiment!r}; the run has {', '.join(embodiments)}")
     chosen = embodiment or embodiments[0]
     from pipeline.io.reader import video_locations
 
-    locations = video_locations(run_root)  # local paths, or URLs on the run's object store
+    locations = video_locations(run)  # local paths, or URLs on the run's object store
     specs = []
     for row in sorted((r for r in table if r["embodiment"] == chosen), key=lambda r: r["video_name"]):
         frames = int(row["frames"])
         specs.append(VideoSpec(key=f"{chosen}/{row['video_name']}", video_name=row["video_name"], labels=[""] * frames,
-                               stems=[f"{t:010d}" for t in range(frames)], store=locations.get((chosen, row["video_name"]), str(run_root / row["store_path"])),
+                               stems=[f"{t:010d}" for t in range(frames)], store=locations.get((chosen, row["video_name"]), str(run.root / row["store_path"])),
                                embodiment=chosen))
     return specs
 

@@ -69,7 +69,7 @@ def result_from_table(table: pa.Table, protocol: VsqProtocol, failed: list[UnitO
 
 def write_json(result: EvaluationResult, path: Path) -> None:
     """Write the result JSON (temp file + rename)."""
-    from pipeline.runtime.run_folder import atomic_write_text
+    from pipeline.store.names import atomic_write_text
 
     atomic_write_text(Path(path), json.dumps(result.to_json(), indent=1, sort_keys=False))
 

@@ -21,8 +21,8 @@ from pipeline.evaluate.predictions import RLE_FOLDER, PredictionSource
 from pipeline.evaluate.subset import filter_by_patterns, select_split
 from pipeline.evaluate.vsq import BUCKETS, VideoCounts, VsqProtocol, evaluate_video
 from pipeline.io.tables import to_table
-from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
+from pipeline.store.run_folder import RunFolder
 
 
 @dataclass(frozen=True)
@@ -77,8 +77,8 @@ class VsqEvaluator(Stage):
 
     def videos(self, run: RunFolder) -> list[VideoSpec]:
         """The ground-truth videos, sorted by key: the split's accepted ones when a split is chosen."""
-        specs = run_videos(run.root, self.inputs.embodiment)
-        return specs if self.inputs.split is None else select_split(run.root, specs, self.inputs.split)
+        specs = run_videos(run, self.inputs.embodiment)
+        return specs if self.inputs.split is None else select_split(run, specs, self.inputs.split)
 
     def units(self, run: RunFolder) -> list[Unit]:
         predictions = Path(self.inputs.predictions)

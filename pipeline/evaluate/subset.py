@@ -10,10 +10,9 @@ from __future__ import annotations
 
 import fnmatch
 from dataclasses import replace
-from pathlib import Path
-
 from pipeline.evaluate.errors import EvaluationInputError
 from pipeline.evaluate.ground_truth import VideoSpec
+from pipeline.store.run_folder import RunFolder
 
 
 def parse_video_patterns(text: str | None) -> tuple[str, ...]:
@@ -32,20 +31,19 @@ def filter_by_patterns(specs: list[VideoSpec], patterns: tuple[str, ...]) -> lis
     return [s for s in specs if any(fnmatch.fnmatchcase(s.video_name, p) or fnmatch.fnmatchcase(s.key, p) for p in patterns)]
 
 
-def select_split(run_root: Path, specs: list[VideoSpec], split: str) -> list[VideoSpec]:
+def select_split(run: RunFolder, specs: list[VideoSpec], split: str) -> list[VideoSpec]:
     """The accepted videos of `split` among `specs`, each with its unseen object ids as zero-shot ids."""
-    from pipeline.io.tables import read_dataset
     from pipeline.split.selection import UnknownSplitError, accepted_videos, zero_shot_objects
 
     try:
-        accepted = set(accepted_videos(run_root, split) or [])
+        accepted = set(accepted_videos(run, split) or [])
     except UnknownSplitError as error:
         raise EvaluationInputError(f"--split: {error}") from None
-    videos = read_dataset(run_root, "videos")
+    videos = run.read("videos")
     scene_of = dict(zip(zip(videos.column("embodiment").to_pylist(), videos.column("video_name").to_pylist()),
                         videos.column("scene_id").to_pylist()))
     unseen_by_scene: dict[str, list[int]] = {}
-    for scene, object_id in sorted(zero_shot_objects(run_root)):
+    for scene, object_id in sorted(zero_shot_objects(run)):
         unseen_by_scene.setdefault(scene, []).append(object_id)
     chosen = []
     for spec in specs:

@@ -14,7 +14,7 @@ import numpy as np
 
 from pipeline.io.query import connect
 from pipeline.lazy_import import lazy_module
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.scenes.categories import categories
 
 duckdb = lazy_module("duckdb")  # loaded on first use (see pipeline.io.query)

@@ -31,8 +31,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline.io.tables import damage_line, trusted_parts_of
-from pipeline.runtime.markers import Damage
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.markers import Damage
+from pipeline.store.run_folder import RunFolder
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +62,7 @@ def connect(run: RunFolder, only: Sequence[str] | None = None) -> duckdb.DuckDBP
     if run.store is not None:  # parts are read in place, through the run's own fsspec client (no httpfs)
         connection.register_filesystem(run.store.fs)
     datasets = [d for d in run.datasets() if only is None or d in only]
-    found = trusted_parts_of(run.root, datasets)  # each stage's files checked once
+    found = trusted_parts_of(run, datasets)  # each stage's files checked once
     _report_damage({dataset: damaged for dataset, (_, damaged) in found.items()})
     parts = {dataset: [str(path) for path in paths] for dataset, (paths, _) in found.items()}
     scans = {dataset: _scan(files) for dataset, files in parts.items() if files}
@@ -174,7 +174,7 @@ def query(run: RunFolder, sql: str, timeout_s: float | None = DEFAULT_TIMEOUT_S)
     if not isinstance(error, duckdb.Error):
         raise error  # type: ignore[misc]
     known = ", ".join(run.datasets()) or "none yet"
-    raise QueryError(f"{_first_line(error)} (tables in {run.root}: {known})")
+    raise QueryError(f"{_first_line(error)} (tables in {run.location}: {known})")
 
 
 def _first_line(error: Exception) -> str:

@@ -19,9 +19,9 @@ import numpy as np
 
 from pipeline.io.zarr_video import open_video
 from pipeline.lazy_import import lazy_module
-from pipeline.runtime.markers import Marker, check_files, stage_markers, stages_writing, unit_marker
-from pipeline.runtime.object_store import store_of
-from pipeline.runtime.run_folder import RunFolder, is_plain_name, run_root
+from pipeline.store.markers import Marker
+from pipeline.store.names import is_plain_name
+from pipeline.store.run_folder import RunFolder, as_run
 
 zarr = lazy_module("zarr")  # loaded on first use (see pipeline.io.zarr_video)
 
@@ -36,15 +36,15 @@ class VideoDamagedError(VideoNotFoundError):
     """A stored video whose files are not as its unit's marker says; `mvpd rerun` repairs it."""
 
 
-def _split_videos(run: Any, split: str | None) -> set[tuple[str, str]] | None:
+def _split_videos(run: RunFolder, split: str | None) -> set[tuple[str, str]] | None:
     """Accepted videos of `split` (None when no split is asked); raises when the run has no split output."""
     if split is None:
         return None
     from pipeline.split.selection import accepted_videos
 
-    accepted = accepted_videos(run_root(run), split)
+    accepted = accepted_videos(run, split)
     if accepted is None:
-        raise VideoNotFoundError(f"{run_root(run)}: the run has no split (no `splits` table); add a `split:` section "
+        raise VideoNotFoundError(f"{run.location}: the run has no split (no `splits` table); add a `split:` section "
                                  "to the job and run `mvpd submit` again, or omit split=")
     return set(accepted)
 
@@ -103,9 +103,7 @@ class LoadedVideo:
 
 def list_videos(run: Any) -> list[tuple[str, str]]:
     """(embodiment, video_name) of every rendered video of a run, sorted (from its `videos` table)."""
-    from pipeline.io.tables import read_dataset
-
-    table = read_dataset(run_root(run), "videos")
+    table = as_run(run).read("videos")
     return sorted(zip(table.column("embodiment").to_pylist(), table.column("video_name").to_pylist()))
 
 
@@ -114,12 +112,12 @@ def list_videos(run: Any) -> list[tuple[str, str]]:
 _Found = dict[str, "tuple[str, Marker] | None"]
 
 
-def _resolve_embodiment(run: Any, name: str, embodiment: str | None, found_markers: _Found) -> str:
+def _resolve_embodiment(run: RunFolder, name: str, embodiment: str | None, found_markers: _Found) -> str:
     """The embodiment of the stored video `name`. Only a plain name (letters, digits, `_`, `-`, inner dots)
     is looked up, so `../x`, `e/v` or an absolute name finds nothing and nothing outside the run is touched."""
-    root = run_root(run)
+    root = run.location
     hint = f"`mvpd query {root} \"select embodiment, video_name from videos\"` lists them"
-    found = _video_embodiments(root, name, embodiment, found_markers)
+    found = _video_embodiments(run, name, embodiment, found_markers)
     if embodiment is not None:
         if embodiment not in found:
             raise VideoNotFoundError(f"{root}: no video {name!r} of embodiment {embodiment!r}; {hint}")
@@ -131,31 +129,31 @@ def _resolve_embodiment(run: Any, name: str, embodiment: str | None, found_marke
     return found[0]
 
 
-def _video_embodiments(root: Path, name: str, embodiment: str | None, found_markers: _Found) -> list[str]:
+def _video_embodiments(run: RunFolder, name: str, embodiment: str | None, found_markers: _Found) -> list[str]:
     """Embodiments (all, or just `embodiment`) holding a store for video `name`, without listing the videos
     (a run holds 18,000): on local disk one stat per embodiment; on object storage the committing unit's
     marker (a GET each) of the job's embodiments. Names that are not plain never reach a file system."""
     if not (is_plain_name(name) and (embodiment is None or is_plain_name(embodiment))):
         return []
-    if store_of(root) is not None:
-        candidates = [embodiment] if embodiment is not None else [e.name for e in RunFolder(root).job().embodiments]
-        return [e for e in candidates if _video_marker(root, e, name, found_markers) is not None]
-    videos = root / "videos"
+    if run.store is not None:
+        candidates = [embodiment] if embodiment is not None else [e.name for e in run.job().embodiments]
+        return [e for e in candidates if _video_marker(run, e, name, found_markers) is not None]
+    videos = run.root / "videos"
     if not videos.is_dir():
         return []
     candidates = [embodiment] if embodiment is not None else sorted(f.name for f in videos.iterdir() if f.is_dir())
     return [e for e in candidates if (videos / e / f"{name}.zarr").is_dir()]
 
 
-def _video_marker(root: Path, embodiment: str, name: str, found_markers: _Found) -> tuple[str, Marker] | None:
+def _video_marker(run: RunFolder, embodiment: str, name: str, found_markers: _Found) -> tuple[str, Marker] | None:
     """The stage and marker of the unit that committed video `embodiment/name` (render's unit ids, import's)."""
     if embodiment in found_markers:
         return found_markers[embodiment]
     store = f"videos/{embodiment}/{name}.zarr"
     found_markers[embodiment] = None
-    for stage in stages_writing(root, "videos"):
+    for stage in run.stages_writing("videos"):
         for unit in (f"{embodiment}.{name}", name):
-            marker = unit_marker(root, stage, unit)
+            marker = run.marker(stage, unit)
             if marker is not None and store in marker.outputs:
                 found_markers[embodiment] = stage, marker
                 return found_markers[embodiment]
@@ -166,47 +164,48 @@ def video_locations(run: Any) -> dict[tuple[str, str], str]:
     """(embodiment, video_name) -> where each video's Zarr store is read: on local disk its `store_path`
     in the run; on object storage its URL, from the markers of the stages that wrote videos (the `keys`
     of its files; no listing of the bucket)."""
-    from pipeline.io.tables import read_dataset
+    from pipeline.store.datasets import read_dataset
 
-    root = run_root(run)
-    if store_of(root) is None:
-        table = read_dataset(root, "videos", warn=False).select(["embodiment", "video_name", "store_path"]).to_pylist()
-        return {(r["embodiment"], r["video_name"]): str(root / r["store_path"]) for r in table}
-    folder = RunFolder(root)
+    run = as_run(run)
+    if run.store is None:
+        table = read_dataset(run, "videos", warn=False).select(["embodiment", "video_name", "store_path"]).to_pylist()
+        return {(r["embodiment"], r["video_name"]): str(run.root / r["store_path"]) for r in table}
     found = {}
-    for stage in stages_writing(root, "videos"):
-        for marker in stage_markers(root, stage).values():
+    for stage in run.stages_writing("videos"):
+        for marker in run.markers(stage).values():
             for output in marker.outputs:
                 parts = output.split("/")
                 if len(parts) == 3 and parts[0] == "videos" and parts[2].endswith(".zarr"):
-                    found[(parts[1], parts[2][: -len(".zarr")])] = folder.committed_location(marker, output)
+                    found[(parts[1], parts[2][: -len(".zarr")])] = run.committed_location(marker, output)
     return found
 
 
-def _committed_store(root: Path, embodiment: str, name: str, found_markers: _Found) -> str:
+def _committed_store(run: RunFolder, embodiment: str, name: str, found_markers: _Found) -> str:
     """Where video `embodiment/name` is read (its local path or its URL on the store); refuses a video
     whose committing unit's files are damaged (a lost shard would read as zeros)."""
     relative = f"videos/{embodiment}/{name}.zarr"
-    found = _video_marker(root, embodiment, name, found_markers)
+    found = _video_marker(run, embodiment, name, found_markers)
     if found is None:
-        return str(root / relative)  # a store written outside the commit protocol (an old run): as it is
+        return str(run.root / relative)  # a store written outside the commit protocol (an old run): as it is
     stage, marker = found
-    damage = check_files(marker, root)
+    damage = run.check_files(marker)
     if damage:
-        raise VideoDamagedError(f"{root}: video {embodiment}/{name} is damaged ({damage[0].line()}); "
-                                f"`mvpd status {root}` lists damage, `mvpd rerun {root} --stage {stage}` repairs it")
-    return RunFolder(root).committed_location(marker, relative)
+        where = run.location
+        raise VideoDamagedError(f"{where}: video {embodiment}/{name} is damaged ({damage[0].line()}); "
+                                f"`mvpd status {where}` lists damage, `mvpd rerun {where} --stage {stage}` repairs it")
+    return run.committed_location(marker, relative)
 
 
-def _object_names(root: Path, scene_id: str) -> tuple[dict[int, int], dict[int, str]]:
+def _object_names(run: RunFolder, scene_id: str) -> tuple[dict[int, int], dict[int, str]]:
     """Categories and raw names of a scene's objects from the run's `objects` table ({} without it)."""
     import pyarrow as pa
 
-    from pipeline.io.tables import dataset_parts, read_part, spec
+    from pipeline.store.datasets import dataset_parts
+    from pipeline.store.tables import spec
 
-    schema, store = spec("objects").schema, store_of(root)
-    tables = [read_part(part, schema, store, filters=[("scene_id", "=", scene_id)],
-                        columns=["object_id", "mpcat40_index", "raw_name"]) for part in dataset_parts(root, "objects")]
+    schema = spec("objects").schema
+    tables = [run.read_part(part, schema, filters=[("scene_id", "=", scene_id)],
+                            columns=["object_id", "mpcat40_index", "raw_name"]) for part in dataset_parts(run, "objects")]
     if not tables:
         return {}, {}
     table = pa.concat_tables(tables)
@@ -219,17 +218,18 @@ def load_video(run: Any, name: str, embodiment: str | None = None, split: str | 
     """Open one video of a run lazily. `run` is a RunFolder or a path; `embodiment` is needed only when
     several embodiments rendered a video of that name; with `split`, a video the split rejected (empty,
     or zero-shot in train) or that is in another split is not found."""
-    root = run_root(run)
+    run = as_run(run)
+    root = run.location
     found_markers: _Found = {}
-    embodiment = _resolve_embodiment(root, name, embodiment, found_markers)
-    accepted = _split_videos(root, split)
+    embodiment = _resolve_embodiment(run, name, embodiment, found_markers)
+    accepted = _split_videos(run, split)
     if accepted is not None and (embodiment, name) not in accepted:
         raise VideoNotFoundError(f"{root}: video {embodiment}/{name} is not an accepted video of split {split!r} "
                                  f"(`mvpd query {root} \"select * from splits where video_name = '{name}'\"` says why)")
-    video = open_video(_committed_store(root, embodiment, name, found_markers))
+    video = open_video(_committed_store(run, embodiment, name, found_markers))
     attributes = video.attrs
     categories = {int(k): int(v) for k, v in attributes.get("object_categories", {}).items()}
-    table_categories, raw_names = _object_names(root, str(attributes.get("scene_id", "")))
+    table_categories, raw_names = _object_names(run, str(attributes.get("scene_id", "")))
     for object_id in categories:  # the run's objects table is the reference when present
         categories[object_id] = int(table_categories.get(object_id, categories[object_id]))
     return LoadedVideo(
@@ -250,10 +250,8 @@ def clip_index(run: Any, clip_len: int, stride: int | None = None,
     if clip_len < 1:
         raise ValueError(f"clip_len must be >= 1, got {clip_len}")
     stride = stride or clip_len
-    from pipeline.io.tables import read_dataset
-
-    run = run_root(run)
-    table = read_dataset(run, "videos")
+    run = as_run(run)
+    table = run.read("videos")
     frames = {(e, n): f for e, n, f in zip(table.column("embodiment").to_pylist(),
                                              table.column("video_name").to_pylist(), table.column("frames").to_pylist())}
     keys = sorted(frames) if videos is None else list(videos)
@@ -267,7 +265,7 @@ def iter_clips(run: Any, clip_len: int, stride: int | None = None, videos: Seque
                arrays: Sequence[str] = PIXEL_ARRAYS, split: str | None = None) -> Iterator[dict[str, Any]]:
     """Yield clips (dicts of numpy arrays with a leading time axis, poses and keys) of a run's videos
     (with `split`: of that split's accepted videos only)."""
-    run = run_root(run)  # an object-store URL is brought up to date once, not once per video
+    run = as_run(run)  # resolved once, not once per video
     opened: dict[tuple[str, str], LoadedVideo] = {}
     for embodiment, name, start in clip_index(run, clip_len, stride, videos, split):
         if (embodiment, name) not in opened:
@@ -299,7 +297,7 @@ def _torch_dataset_class() -> type:
 
         def __init__(self, run: Any, clip_len: int, stride: int | None = None,
                      videos: Sequence[tuple[str, str]] | None = None, split: str | None = None):
-            self.run = run_root(run)
+            self.run = as_run(run)
             self.index = clip_index(self.run, clip_len, stride, videos, split)
             self.clip_len = clip_len
 

@@ -1,21 +1,15 @@
-"""Public face of `pipeline.runtime.tables` (moved below the runtime, whose status table uses it); import from there."""
+"""Public face of the run's tables: the registry (`pipeline.store.tables`) and marker-trusted reading
+(`pipeline.store.datasets`, each taking an opened RunFolder); import from here."""
 
-from pipeline.runtime.tables import (  # noqa: F401 - re-exported names
-    TableSpec,
-    all_tables,
-    column,
+from pipeline.store.datasets import (  # noqa: F401 - re-exported names
     damage_line,
     damaged_parts,
     dataset_parts,
     read_dataset,
-    read_part,
-    register,
-    spec,
-    to_table,
     trusted_parts,
     trusted_parts_of,
-    write_part,
 )
+from pipeline.store.tables import TableSpec, all_tables, column, register, spec, to_table, write_part  # noqa: F401
 
-__all__ = ["TableSpec", "all_tables", "column", "damage_line", "damaged_parts", "dataset_parts", "read_dataset", "read_part",
+__all__ = ["TableSpec", "all_tables", "column", "damage_line", "damaged_parts", "dataset_parts", "read_dataset",
            "register", "spec", "to_table", "trusted_parts", "trusted_parts_of", "write_part"]

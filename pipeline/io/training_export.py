@@ -32,7 +32,7 @@ from PIL import Image
 
 from pipeline.io.mvpd.layout import JPEG_QUALITY
 from pipeline.io.reader import LoadedVideo, list_videos, load_video
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.scenes.categories import STUFF_CATEGORIES, VOID, categories
 
 log = logging.getLogger(__name__)
@@ -148,14 +148,14 @@ class TrainingExporter(ABC):
         """Called when the export fails part-way: remove temporary files."""
 
 
-def export_training_data(run_root: Path, out: Path, splits: Mapping[str, Sequence[VideoKey]],
+def export_training_data(run: RunFolder, out: Path, splits: Mapping[str, Sequence[VideoKey]],
                          exporter_class: type[TrainingExporter], options: ExportOptions,
                          on_start: Callable[[int], None] | None = None,
                          on_video: Callable[[str], None] | None = None) -> ExportSummary:
     """Write the frames of `splits` with `exporter_class` into `out`.
 
     Args:
-        run_root: the run folder.
+        run: the run folder.
         out: the output folder (created; must be absent or empty unless `options.overwrite`).
         splits: split name -> (embodiment, video_name) of the videos in it, in export order.
         exporter_class: `CocoExporter` or `YoloExporter`.
@@ -163,7 +163,6 @@ def export_training_data(run_root: Path, out: Path, splits: Mapping[str, Sequenc
         on_start, on_video: progress callbacks (number of videos; each finished video's name).
     """
     started = time.monotonic()
-    run = RunFolder.open(run_root)
     chosen = _checked_splits(run, splits, options)
     out = _prepare_output(Path(out), exporter_class.layout, options.overwrite)
     exporter = exporter_class(out, options)
@@ -294,6 +293,6 @@ def run_splits(accepted: Callable[[str], Sequence[VideoKey] | None] | None,
     return {name: list(videos) for name, videos in found.items() if videos is not None}
 
 
-def unsplit(run_root: Path) -> dict[str, list[VideoKey]]:
+def unsplit(run: RunFolder) -> dict[str, list[VideoKey]]:
     """Every video of the run as one split named `all` (a run without a split stage)."""
-    return {NO_SPLIT: list_videos(run_root)}
+    return {NO_SPLIT: list_videos(run)}

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.lazy_import import lazy_module
-from pipeline.runtime.object_store import remote_url
+from pipeline.store.remote import remote_url
 
 zarr = lazy_module("zarr")  # loaded on first use: commands that never open a video start faster
 

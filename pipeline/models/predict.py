@@ -28,7 +28,8 @@ from pipeline.evaluate.predictions import RLE_FOLDER
 from pipeline.models.fastspam import FastSpam, FastSpamOptions
 from pipeline.models.segmenter import SEGMENTERS, FrameInput, ModelError, Segmenter, make_segmenter
 from pipeline.runtime.executor import ProgressCallback, StagePlan, StageReport, run_stage
-from pipeline.runtime.run_folder import JOB_FILE, RunFolder, atomic_write_text, run_root
+from pipeline.store.names import JOB_FILE, atomic_write_text
+from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 
 MANIFEST = "prediction.yaml"
@@ -124,16 +125,15 @@ class SegmentationPredictor(Stage):
 
     def units(self, run: RunFolder) -> list[Unit]:
         from pipeline.io.reader import video_locations
-        from pipeline.io.tables import read_dataset
 
         wanted = set(self.inputs.videos) if self.inputs.videos is not None else None
-        source = run_root(self.inputs.source_run)
+        source = RunFolder.open(self.inputs.source_run)  # the run predicted, apart from `run` (the predictions)
         locations = video_locations(source)  # local paths, or URLs on the source run's object store
         units = []
-        for row in read_dataset(source, "videos").to_pylist():
+        for row in source.read("videos").to_pylist():
             if row["embodiment"] != self.inputs.embodiment or (wanted is not None and row["video_name"] not in wanted):
                 continue
-            store = locations.get((row["embodiment"], row["video_name"]), str(source / row["store_path"]))
+            store = locations.get((row["embodiment"], row["video_name"]), str(source.root / row["store_path"]))
             units.append(Unit(f"{row['embodiment']}.{row['video_name']}",
                               {"video": row["video_name"], "store": store, "frames": int(row["frames"])}))
         return sorted(units, key=lambda u: u.id)
@@ -190,18 +190,16 @@ def rle_payload(masks: np.ndarray, ids: np.ndarray | None) -> dict[str, Any]:
 
 def resolve_embodiment(run: RunFolder, embodiment: str | None) -> str:
     """The embodiment to predict: the given one (checked) or the run's only one."""
-    from pipeline.io.tables import read_dataset
-
-    names = sorted(set(read_dataset(run.root, "videos").column("embodiment").to_pylist()))
+    names = sorted(set(run.read("videos").column("embodiment").to_pylist()))
     if not names:
-        raise PredictionInputError(f"{run.root / 'videos'}: no rendered videos; run the render stage first "
+        raise PredictionInputError(f"{run.location}/videos: no rendered videos; run the render stage first "
                                    "(mvpd rerun RUN --stage render)")
     if embodiment is None:
         if len(names) > 1:
-            raise PredictionInputError(f"{run.root}: the run has embodiments {', '.join(names)}; choose one with --embodiment")
+            raise PredictionInputError(f"{run.location}: the run has embodiments {', '.join(names)}; choose one with --embodiment")
         return names[0]
     if embodiment not in names:
-        raise PredictionInputError(f"{run.root}: no videos of embodiment {embodiment!r}; the run has {', '.join(names)}")
+        raise PredictionInputError(f"{run.location}: no videos of embodiment {embodiment!r}; the run has {', '.join(names)}")
     return embodiment
 
 
@@ -238,7 +236,7 @@ def check_output_folder(out: Path, identity: dict[str, Any]) -> None:
         raise PredictionInputError(f"{out}: holds {what}, not predictions; choose an empty or new --out folder")
 
 
-def predict_run(run_dir: str | Path, out: str | Path, model: ModelConfig, embodiment: str | None = None,
+def predict_run(source: RunFolder, out: str | Path, model: ModelConfig, embodiment: str | None = None,
                 videos: Sequence[str] | None = None, selection: str = NO_SPLIT, force: bool = False,
                 address: str | None = None, on_start: Callable[[StagePlan], None] | None = None,
                 on_unit: ProgressCallback | None = None) -> StageReport:
@@ -247,7 +245,6 @@ def predict_run(run_dir: str | Path, out: str | Path, model: ModelConfig, embodi
     Every check (model, run, depth and poses for self-prompting, output folder) happens before anything
     is written; then one unit per video runs on Ray and only videos without a valid marker run.
     """
-    source = RunFolder.open(run_dir)
     job = source.job()
     build_model(model)  # unknown name, bad options, missing extra or checkpoint: fail before writing
     chosen = resolve_embodiment(source, embodiment)

@@ -25,7 +25,8 @@ from pipeline.config import config_hash
 from pipeline.evaluate.predictions import RLE_FOLDER, read_rle_file
 from pipeline.evaluate.vsq import AGGREGATE, ZERO_SHOT, Counts, VideoCounts, VsqProtocol, summarize
 from pipeline.models.predict import NO_SPLIT, SELF_PROMPTING_SUFFIX, ModelConfig, build_model, predict_run, resolve_embodiment
-from pipeline.runtime.run_folder import RunFolder, atomic_write_text
+from pipeline.store.names import atomic_write_text
+from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.runner import Observer
 
 KS_LABELS = ("1", "5", "10", "15")
@@ -85,7 +86,7 @@ def score_model(run: RunFolder, spec: str, out: Path, embodiment: str, videos: S
 
     config = ModelConfig.from_spec(spec)
     folder = out / "predictions" / spec
-    report = predict_run(run.root, folder, config, embodiment, videos, selection,
+    report = predict_run(run, folder, config, embodiment, videos, selection,
                          address=address, on_start=observer.on_stage_start, on_unit=observer.on_unit)
     if observer.on_stage_end is not None:
         observer.on_stage_end(report)
@@ -98,11 +99,11 @@ def score_model(run: RunFolder, spec: str, out: Path, embodiment: str, videos: S
     if report.failed:  # a table over the videos that happened to work would mislead
         raise ReportError(f"{spec}: {len(report.failed)} videos failed to predict (e.g. {report.failed[0].unit}: "
                           f"{report.failed[0].message}); see `mvpd status {folder}`, fix, and report again")
-    result = evaluate_run(run.root, folder, embodiment, on_start=observer.on_stage_start, on_unit=observer.on_unit,
+    result = evaluate_run(run, folder, embodiment, on_start=observer.on_stage_start, on_unit=observer.on_unit,
                           split=None if selection == NO_SPLIT else selection)
     if result.failed:
         raise ReportError(f"{spec}: {len(result.failed)} videos failed to evaluate (e.g. {result.failed[0].unit}: "
-                          f"{result.failed[0].message}); see `mvpd status {run.root}`")
+                          f"{result.failed[0].message}); see `mvpd status {run.location}`")
     scores = ModelScores(spec, dict(result.per_video), protocol)
     atomic_write_text(cache, json.dumps({"stamp": stamp, "per_video": {k: v.as_dict() for k, v in sorted(scores.per_video.items())}}))
     return scores
@@ -112,13 +113,13 @@ def _default_split(run: RunFolder, embodiment: str) -> tuple[str, list[str] | No
     """As `mvpd evaluate`: the test split's accepted videos when the run has a split, else every video."""
     from pipeline.split.selection import accepted_videos
 
-    accepted = accepted_videos(run.root, "test")
+    accepted = accepted_videos(run, "test")
     if accepted is None:
         return NO_SPLIT, None
     return "test", sorted(name for owner, name in accepted if owner == embodiment)
 
 
-def write_model_report(run_dir: str | Path, specs: Sequence[str], out: str | Path | None = None,
+def write_model_report(run: RunFolder, specs: Sequence[str], out: str | Path | None = None,
                        embodiment: str | None = None, videos: Sequence[str] | None = None, selection: str = NO_SPLIT,
                        address: str | None = None, observer: Observer | None = None) -> Path:
     """Predict, evaluate and write `report.md` + pictures for `specs` on one run; returns report.md's path.
@@ -128,7 +129,6 @@ def write_model_report(run_dir: str | Path, specs: Sequence[str], out: str | Pat
     """
     from pipeline.models.segmenter import ModelError
 
-    run = RunFolder.open(run_dir)
     if not specs:
         raise ModelError("--models is empty; give model specs such as geometric,geometric+sp")
     for spec in specs:  # every name and extra is checked before anything is written
@@ -302,7 +302,7 @@ def _picture_strip(run: RunFolder, embodiment: str, specs: Sequence[str], out: P
     names = sorted(set.intersection(*[{p.name for p in f.iterdir()} if f.is_dir() else set() for f in folders]))
     if not names:
         return None
-    video = load_video(run.root, names[0], embodiment)
+    video = load_video(run, names[0], embodiment)
     frames = sorted({int(i) for i in np.linspace(0, video.frames - 1, 4)})
     columns = 2 + len(specs)
     figure, axes = plt.subplots(len(frames), columns, figsize=(2.4 * columns, 1.9 * len(frames)), squeeze=False)

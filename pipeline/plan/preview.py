@@ -20,11 +20,11 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from pipeline.config import Body, PlanConfig
-from pipeline.io.tables import read_part, spec
+from pipeline.io.tables import spec
 from pipeline.plan.navigable import (MeshQuery, NavigableArea, NavigableAreaError, compute_navigable_area, drawable_islands,
                                       island_summary)
 from pipeline.plan.stage import navmesh_path
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.scenes.preview import top_down_image
 from pipeline.scenes.scene import Scene
 
@@ -208,4 +208,4 @@ def _unit_part(run: RunFolder, dataset: str, unit: str) -> pa.Table:
     on object storage read in place at the key its marker names."""
     part = run.committed_part("plan", unit, dataset)
     schema = spec(dataset).schema
-    return read_part(part, schema, run.store) if part is not None else schema.empty_table()
+    return run.read_part(part, schema) if part is not None else schema.empty_table()

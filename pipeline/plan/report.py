@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ from pipeline.io.tables import to_table
 from pipeline.plan.navigable import FORMAT_VERSION, MeshQuery, NavigableArea, NavigableAreaError, compute_navigable_area
 from pipeline.plan.paths import DrawReport, FloorPath, FloorPathSampler
 from pipeline.plan.poses import level_camera_rotations, matrix_to_quaternion
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 from pipeline.scenes.scene import Scene
 

@@ -17,7 +17,7 @@ import pyarrow as pa
 
 from pipeline.config import Embodiment, Job
 from pipeline.io.segments import frame_segments
-from pipeline.io.tables import dataset_parts, read_part, spec, to_table
+from pipeline.io.tables import dataset_parts, spec, to_table
 from pipeline.io.zarr_video import VideoWriter
 from pipeline.plan.poses import pose_matrices
 from pipeline.render.lighting import SurfaceColors, job_exposure
@@ -29,7 +29,7 @@ from pipeline.scenes.scene import Scene
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from pipeline.runtime.run_folder import RunFolder
+    from pipeline.store.run_folder import RunFolder
 
 # Bump when the rendered pixels change for the same inputs (part of every unit's config hash).
 # 2: rays and spot scale computed in another float32 order (a few pixels per frame differ by 1-2 levels).
@@ -227,11 +227,11 @@ def read_poses(run: "RunFolder", trajectory: Mapping[str, Any]) -> np.ndarray:
     embodiment, video_name, frames = trajectory["embodiment"], trajectory["video_name"], int(trajectory["frames"])
     part = run.committed_part("plan", f"{trajectory['scene_id']}.{embodiment}", "frames")
     # Frames committed otherwise (a fixture, a tool): every trusted part, filtered.
-    parts = [part] if part is not None else dataset_parts(run.root, "frames")
+    parts = [part] if part is not None else dataset_parts(run, "frames")
     if not parts:
         raise RenderInputError(f"{run.location}/frames: missing; run `mvpd rerun RUN --stage plan`")
     schema = spec("frames").schema
-    table = pa.concat_tables([read_part(part, schema, run.store, filters=[("embodiment", "=", embodiment),
+    table = pa.concat_tables([run.read_part(part, schema, filters=[("embodiment", "=", embodiment),
                                                                           ("video_name", "=", video_name)])
                               for part in parts]).sort_by("frame")
     order = table.column("frame").to_numpy()

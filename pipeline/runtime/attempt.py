@@ -13,24 +13,22 @@ import time
 import traceback
 from pathlib import Path
 
-from pipeline.runtime.failures import failure_line, is_no_space
-from pipeline.runtime.lock import LeaseLostError
-from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 from pipeline.runtime.status import UnitOutcome
+from pipeline.store.failures import failure_line, is_no_space
+from pipeline.store.lock import LeaseLostError
+from pipeline.store.run_folder import RunFolder
 
 
-def execute_unit(stage: Stage, run_root: str, unit: Unit, attempt: int, fence: str = "") -> UnitOutcome:
+def execute_unit(stage: Stage, run: RunFolder, unit: Unit, attempt: int) -> UnitOutcome:
     """Run one unit: stage it, commit it, write its marker.
 
     `attempt` is the run folder's count for this unit (earlier runs + 1); a Ray retry after a dead
     worker adds its retry number, so the marker and status say attempt 2 when the first worker died.
-    `fence` is the owner id of the driver's run lock: the commit checks that the lock still names it.
+    The commit checks that the run lock still names the driver (`run.fence`, its owner id).
     Errors raised by the stage become a failed outcome; a dying process leaves only its staging folder.
     A lost lease (LeaseLostError) is raised: it is the driver's end, not this unit's failure.
     """
-    run = RunFolder(run_root)  # a worker handed a store's URL reads the store: nothing is pulled first
-    run.fence = fence
     retry = ray_retry_number()
     attempt += retry
     log_file = run.log_path(stage.name, unit.id)

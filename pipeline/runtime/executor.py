@@ -10,27 +10,23 @@ code is caught in the worker, logged and recorded in `status/`, never retried bl
 from __future__ import annotations
 
 import logging
-import shutil
-import socket
 import time
 from dataclasses import dataclass, field
 from typing import Callable
 
-import pyarrow as pa
-
+from pipeline.errors import error_text
 from pipeline.runtime.attempt import execute_unit
 from pipeline.runtime.executors import ExecutorName, ProgressCallback, run_units
-from pipeline.runtime.marker_index import index_stage
-from pipeline.runtime.markers import Damage, code_version, unit_damage
-from pipeline.runtime.run_folder import STAGING, Marker, RunFolder
 from pipeline.runtime.stage import Stage, Unit
 from pipeline.runtime.status import UnitOutcome, read_status, write_status
-from pipeline.runtime.tables import damaged_parts, write_part
+from pipeline.store.datasets import damaged_parts
+from pipeline.store.markers import Damage, Marker
+from pipeline.store.run_folder import RunFolder
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ProgressCallback", "StageOrderError", "StagePlan", "StageReport", "UnitFailedError", "code_version",
-           "commit_tables", "execute_unit", "plan_stage", "retire_units", "run_stage", "run_unit_locally"]
+__all__ = ["ProgressCallback", "StageOrderError", "StagePlan", "StageReport", "UnitFailedError", "execute_unit",
+           "plan_stage", "run_stage", "run_unit_locally"]
 
 
 class StageOrderError(RuntimeError):
@@ -78,7 +74,7 @@ class StageReport:
 
 def run_unit_locally(stage: Stage, run: RunFolder, unit: Unit) -> Marker:
     """Run one unit in this process without Ray (for tests and debugging); raises on failure."""
-    outcome = execute_unit(stage, str(run.root), unit, attempt=1)
+    outcome = execute_unit(stage, run, unit, attempt=1)
     if outcome.failed:
         raise UnitFailedError(f"{stage.name}/{unit.id}: {outcome.error_type}: {outcome.message} (log: {outcome.log_path})")
     marker = run.marker(stage.name, unit.id)
@@ -90,19 +86,6 @@ class UnitFailedError(RuntimeError):
     """A unit run with `run_unit_locally` raised."""
 
 
-def commit_tables(run: RunFolder, stage: str, unit: str, tables: dict[str, pa.Table]) -> Marker:
-    """Commit tables made outside a stage (test fixtures, tools) as the outputs of `stage`/`unit`.
-
-    The same protocol as a unit's commit: parts are staged, moved into place and named by a marker, so
-    readers (which trust only what markers name) see them.
-    """
-    staging = run.staging(stage, unit)
-    for dataset, table in tables.items():
-        write_part(staging, dataset, unit, table)
-    return run.commit_unit(stage, unit, staging, config_hash="", rows={d: t.num_rows for d, t in tables.items()},
-                           seconds=0.0, attempt=1, finished_at=time.time(), host=socket.gethostname())
-
-
 # ------------------------------------------------------------------------------ one stage
 
 
@@ -111,10 +94,10 @@ def plan_stage(stage: Stage, run: RunFolder, force: bool = False) -> StagePlan:
     for upstream in stage.after:
         if not run.markers(upstream):
             raise StageOrderError(f"stage {stage.name} reads the outputs of {upstream}, which has no finished "
-                                  f"unit in {run.root}; run {upstream} first (mvpd rerun RUN --stage {upstream})")
+                                  f"unit in {run.location}; run {upstream} first (mvpd rerun RUN --stage {upstream})")
     units = stage.units(run)
     markers = run.markers(stage.name)
-    damaged = unit_damage(run.root, markers)
+    damaged = run.damage(markers)
     to_run, up_to_date = [], []
     for unit in units:
         marker = markers.get(unit.id)
@@ -124,25 +107,15 @@ def plan_stage(stage: Stage, run: RunFolder, force: bool = False) -> StagePlan:
             to_run.append(unit)
     retired = sorted(set(markers) - {u.id for u in units})
     return StagePlan(stage.name, units, to_run, up_to_date, retired, {u: d for u, d in damaged.items() if u not in retired},
-                     [d for d in damaged_parts(run.root, "status") if d.unit == stage.name])
+                     [d for d in damaged_parts(run, "status") if d.unit == stage.name])
 
 
 def upstream_damage(stage: Stage, run: RunFolder) -> dict[str, list[Damage]]:
     """Damaged units of the stages `stage` reads from (its units may be listed from incomplete tables)."""
     found = {}
     for upstream in stage.after:
-        found.update({f"{upstream}/{unit}": d for unit, d in unit_damage(run.root, run.markers(upstream)).items()})
+        found.update({f"{upstream}/{unit}": d for unit, d in run.damage(run.markers(upstream)).items()})
     return found
-
-
-def retire_units(run: RunFolder, stage: str, unit_ids: list[str]) -> None:
-    """Remove outputs and markers of units the job no longer has (so queries never see stale rows)."""
-    for unit_id in unit_ids:
-        marker = run.marker(stage, unit_id)
-        run.drop_marker(stage, unit_id)
-        run.commit(run.staging(stage, unit_id), [], marker.outputs if marker else [])
-        if run.store is not None and marker is not None:
-            run.store.remove(sorted(marker.keys.values()))
 
 
 def run_stage(stage: Stage, run: RunFolder, force: bool = False, address: str | None = None,
@@ -161,10 +134,10 @@ def run_stage(stage: Stage, run: RunFolder, force: bool = False, address: str | 
         log.warning("%s: not retiring %s units while %s upstream units are damaged (e.g. %s); rerun those first",
                     stage.name, len(plan.retired), len(damaged_upstream), next(iter(damaged_upstream)))
     else:
-        retire_units(run, stage.name, plan.retired)
+        run.retire(stage.name, plan.retired)
     if on_start is not None:
         on_start(plan)
-    previous = read_status(run.root, stage.name)
+    previous = read_status(run, stage.name)
     markers = run.markers(stage.name)
     attempts = {u.id: 1 + max(previous[(stage.name, u.id)].attempt if (stage.name, u.id) in previous else 0,
                               markers[u.id].attempt if u.id in markers else 0)
@@ -173,8 +146,17 @@ def run_stage(stage: Stage, run: RunFolder, force: bool = False, address: str | 
     statuses = {unit: outcome for (_, unit), outcome in previous.items() if unit in {u.id for u in plan.units}}
     statuses.update({o.unit: o for o in outcomes})
     # First, so that what failed units staged is gone (on a full disk, the room the status table needs).
-    shutil.rmtree(run.root / STAGING / stage.name, ignore_errors=True)
-    run.check_fence()  # the status table is committed like a unit: only while this driver holds the run
-    write_status(run.root, stage.name, statuses)
-    index_stage(run.root, stage.name)  # one file of all the stage's markers, for the next reader
+    run.clear_staging(stage.name)
+    write_status(run, stage.name, statuses)  # committed like a unit: fenced by this driver's run lock
+    _index_markers(run, stage.name)
+
     return StageReport(stage.name, len(plan.units), len(plan.up_to_date), outcomes, time.perf_counter() - started)
+
+
+def _index_markers(run: RunFolder, stage: str) -> None:
+    """One file of all the stage's markers, for the next reader; a failure costs only speed (logged)."""
+    try:
+        run.index_markers(stage)
+    except OSError as error:
+        log.warning("marker index of stage %s not written (%s); readers read the markers instead", stage,
+                    error_text(error))

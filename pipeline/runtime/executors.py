@@ -15,13 +15,13 @@ import sys
 import time
 from typing import Callable, Literal
 
+from pipeline.errors import error_text
 from pipeline.runtime.attempt import append_to_unit_log, execute_unit
-from pipeline.runtime.failures import error_text
-from pipeline.runtime.lock import LeaseLostError
-from pipeline.runtime.object_store import storage_environment, use_storage_environment
-from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit
 from pipeline.runtime.status import UnitOutcome
+from pipeline.store.lock import LeaseLostError
+from pipeline.store.remote import storage_environment, use_storage_environment
+from pipeline.store.run_folder import RunAddress, RunFolder
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +62,7 @@ def run_inline(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[s
             if spent / len(outcomes) * (len(units) - index) > budget_s:
                 break
         run.check_lease()
-        outcome = execute_unit(stage, str(run.root), unit, attempts[unit.id], run.fence)
+        outcome = execute_unit(stage, run, unit, attempts[unit.id])
         outcomes.append(outcome)
         on_unit(outcome)
     return outcomes
@@ -82,15 +82,16 @@ def _run_adaptively(stage: Stage, run: RunFolder, units: list[Unit], attempts: d
 # ------------------------------------------------------------------------------------------ Ray
 
 
-def execute_unit_on_worker(environment: dict[str, str], stage: Stage, location: str, unit: Unit, attempt: int,
-                           fence: str) -> UnitOutcome:
-    """`execute_unit` in a Ray worker, after taking the driver's storage variables (`environment`).
+def execute_unit_on_worker(environment: dict[str, str], stage: Stage, run: RunAddress, unit: Unit,
+                           attempt: int) -> UnitOutcome:
+    """`execute_unit` in a Ray worker, after taking the driver's storage variables (`environment`); the run
+    is opened here, once, with them.
 
     Credentials travel as this task's argument, in memory, and never through Ray's `runtime_env`: Ray
     writes a task's runtime_env into its session logs (readable by every user of the machine).
     """
     use_storage_environment(environment)
-    return execute_unit(stage, location, unit, attempt, fence)
+    return execute_unit(stage, run.open(), unit, attempt)
 
 
 def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[str, int], address: str | None,
@@ -107,7 +108,7 @@ def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[s
         max_retries=stage.job.runtime.max_retries, retry_exceptions=False, name=f"mvpd.{stage.name}",
     )
     environment = storage_environment(run.store.url if run.store else None)
-    stage_ref = ray.put(stage)
+    stage_ref, address = ray.put(stage), run.address()
     limit = stage.job.runtime.max_in_flight or max(1, int(ray.cluster_resources().get("CPU", 1) // resources.cpus))
     pending = list(reversed(units))
     in_flight: dict[object, tuple[Unit, float]] = {}
@@ -116,7 +117,7 @@ def run_on_ray(stage: Stage, run: RunFolder, units: list[Unit], attempts: dict[s
         _check_lease(run, in_flight)
         while pending and len(in_flight) < limit:
             unit = pending.pop()
-            ref = task.remote(environment, stage_ref, run.location, unit, attempts[unit.id], run.fence)
+            ref = task.remote(environment, stage_ref, address, unit, attempts[unit.id])
             in_flight[ref] = (unit, time.monotonic())
         ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=1.0)
         for ref in ready:

@@ -6,12 +6,12 @@ from dataclasses import dataclass, field
 
 from pipeline.config import ConfigError
 from pipeline.runtime.executor import StageOrderError, plan_stage
-from pipeline.runtime.markers import Damage, marked_stages, unit_damage
-from pipeline.runtime.run_folder import RunFolder
 from pipeline.runtime.stage import Stage
 from pipeline.runtime.status import UnitOutcome, read_status
-from pipeline.runtime.tables import damaged_parts
 from pipeline.stages import JOB_STAGES, make_stage
+from pipeline.store.datasets import damaged_parts
+from pipeline.store.markers import Damage
+from pipeline.store.run_folder import RunFolder
 
 
 @dataclass
@@ -47,13 +47,13 @@ class RunState:
 def run_state(run: RunFolder) -> RunState:
     """The state of every job stage of `run`, then of stages outside the job (import, evaluate)."""
     job = run.job()
-    statuses = read_status(run.root)
+    statuses = read_status(run)
     states = [_state(run, make_stage(name, job), statuses) for name in JOB_STAGES]
     # Stages outside the job are shown by what they recorded; `_`-names are the runtime's own records.
-    recorded = sorted({stage for stage, _ in statuses} | set(marked_stages(run.root)))
+    recorded = sorted({stage for stage, _ in statuses} | set(run.marked_stages()))
     states += [_recorded_state(run, name, statuses) for name in recorded
                if name not in JOB_STAGES and not name.startswith("_")]
-    return RunState(states, damaged_parts(run.root, "status"))
+    return RunState(states, damaged_parts(run, "status"))
 
 
 def stage_states(run: RunFolder) -> list[StageState]:
@@ -63,7 +63,7 @@ def stage_states(run: RunFolder) -> list[StageState]:
 
 def _recorded_state(run: RunFolder, stage: str, statuses: dict[tuple[str, str], UnitOutcome]) -> StageState:
     markers = run.markers(stage)
-    state = StageState(stage, damaged=unit_damage(run.root, markers))
+    state = StageState(stage, damaged=run.damage(markers))
     state.done = sorted(set(markers) - set(state.damaged))
     state.failed = [o for (name, unit), o in sorted(statuses.items())
                     if name == stage and o.failed and unit not in markers]

@@ -9,10 +9,9 @@ from typing import Callable
 from pipeline.config import Job
 from pipeline.runtime.executor import ProgressCallback, StageOrderError, StagePlan, StageReport, run_stage
 from pipeline.runtime.executors import ExecutorName
-from pipeline.runtime.failures import stop_on_storage_failure
-from pipeline.runtime.object_store import remote_url
-from pipeline.runtime.run_folder import RunFolder
 from pipeline.stages import JOB_STAGES, make_stage
+from pipeline.store.failures import stop_on_storage_failure
+from pipeline.store.run_folder import RunFolder
 
 
 @dataclass
@@ -36,26 +35,25 @@ class JobReport:
         return sum(len(s.failed) for s in self.stages)
 
 
-def submit(job: Job, run_dir: str | Path, stages: list[str] | None = None, address: str | None = None,
+def submit(job: Job, run: RunFolder, stages: list[str] | None = None, address: str | None = None,
            observer: Observer | None = None, executor: ExecutorName = "auto") -> JobReport:
-    """Create (or reopen) the run folder for `job` and run its stages; only stale or damaged units run.
+    """Run the stages of `job` in a prepared run folder (`RunFolder.prepare`), saving the job in it; only
+    stale or damaged units run.
 
     A failure of the storage (a full disk, an unreachable store) stops the driver with RunStoppedError (one
     line), after the run lock is released.
     """
-    with stop_on_storage_failure(remote_url(run_dir) or run_dir):
-        run = RunFolder.prepare(run_dir)
+    with stop_on_storage_failure(run.location):
         with run.locked():
             run.save_job(job)
             return _run(job, run, stages or list(JOB_STAGES), False, address, observer, executor)
 
 
-def rerun(run_dir: str | Path, stage: str, force: bool = False, address: str | None = None,
+def rerun(run: RunFolder, stage: str, force: bool = False, address: str | None = None,
           observer: Observer | None = None, executor: ExecutorName = "auto") -> JobReport:
     """Run one stage of an existing run again: failed, missing, stale and damaged units, or all with `force`
     (storage failures as in `submit`)."""
-    with stop_on_storage_failure(remote_url(run_dir) or run_dir):
-        run = RunFolder.open(run_dir)
+    with stop_on_storage_failure(run.location):
         with run.locked():
             return _run(run.job(), run, [stage], force, address, observer, executor)
 

@@ -17,9 +17,10 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline.config import Job, StageResources, config_hash
+from pipeline.store.tables import write_part
 
 if TYPE_CHECKING:
-    from pipeline.runtime.run_folder import RunFolder
+    from pipeline.store.run_folder import RunFolder
 
 
 @dataclass(frozen=True)
@@ -62,8 +63,6 @@ class UnitContext:
 
     def write_table(self, dataset: str, table: pa.Table) -> Path:
         """Stage `table` as `<dataset>/part-<unit>.parquet` (the table must carry its registered schema)."""
-        from pipeline.runtime.tables import write_part
-
         path = write_part(self.staging, dataset, self.unit.id, table)
         self._rows[dataset] = self._rows.get(dataset, 0) + table.num_rows
         return path

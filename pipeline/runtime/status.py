@@ -9,31 +9,13 @@ attempts; failed units show as pending until they run again), and the next run o
 
 from __future__ import annotations
 
-import socket
-import time
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
-import pyarrow as pa
-
-from pipeline.runtime.markers import STATUS_STAGE, stage_markers
-from pipeline.runtime.run_folder import RunFolder
-from pipeline.runtime.tables import column, damaged_parts, read_dataset, register, to_table, write_part
-
-STATUS = register(
-    "status",
-    [
-        column("stage", pa.string(), "stage name"),
-        column("unit", pa.string(), "unit id"),
-        column("state", pa.string(), "done | failed"),
-        column("attempt", pa.int32(), "how many times the unit has been run in this run folder (Ray retries included)"),
-        column("error_type", pa.string(), "exception class of a failed unit (empty when done)"),
-        column("message", pa.string(), "one-line error message (empty when done)"),
-        column("log_path", pa.string(), "the unit's log file, relative to the run folder"),
-        column("seconds", pa.float64(), "wall time of the last attempt, seconds"),
-    ],
-    row="the latest outcome of one unit of one stage",
-)
+from pipeline.runtime.tables import STATUS
+from pipeline.store.datasets import damaged_parts, read_dataset
+from pipeline.store.names import STATUS_STAGE
+from pipeline.store.run_folder import RunFolder
+from pipeline.store.tables import to_table
 
 
 @dataclass
@@ -54,25 +36,20 @@ class UnitOutcome:
         return self.state != "done"
 
 
-def read_status(run_root: Path, stage: str | None = None) -> dict[tuple[str, str], UnitOutcome]:
+def read_status(run: RunFolder, stage: str | None = None) -> dict[tuple[str, str], UnitOutcome]:
     """(stage, unit) -> latest outcome, for one stage or all; a damaged stage's rows come from its markers."""
-    root = Path(run_root)
-    rows = read_dataset(root, "status", warn=False).to_pylist()  # damage here is rebuilt, and shown by `status`
+    rows = read_dataset(run, STATUS.name, warn=False).to_pylist()  # damage here is rebuilt, and shown by `status`
     found = {(r["stage"], r["unit"]): UnitOutcome(**r) for r in rows if stage is None or r["stage"] == stage}
-    for damaged_stage in sorted({d.unit for d in damaged_parts(root, "status")}):
+    for damaged_stage in sorted({d.unit for d in damaged_parts(run, STATUS.name)}):
         if stage is None or damaged_stage == stage:
-            for unit, marker in stage_markers(root, damaged_stage).items():
+            for unit, marker in run.markers(damaged_stage).items():
                 found.setdefault((damaged_stage, unit), UnitOutcome(
                     damaged_stage, unit, "done", marker.attempt, log_path=f"logs/{damaged_stage}/{unit}.log",
                     seconds=marker.seconds))
     return found
 
 
-def write_status(run_root: Path, stage: str, outcomes: dict[str, UnitOutcome]) -> None:
+def write_status(run: RunFolder, stage: str, outcomes: dict[str, UnitOutcome]) -> None:
     """Replace the stage's status rows with `outcomes` (unit -> outcome), sorted by unit, by a commit."""
-    run = RunFolder(run_root)
     rows = [asdict(outcomes[unit]) for unit in sorted(outcomes)]
-    staging = run.staging(STATUS_STAGE, stage)
-    write_part(staging, "status", stage, to_table("status", rows))
-    run.commit_unit(STATUS_STAGE, stage, staging, config_hash="", rows={"status": len(rows)}, seconds=0.0,
-                    attempt=1, finished_at=time.time(), host=socket.gethostname())
+    run.commit_tables(STATUS_STAGE, stage, {STATUS.name: to_table(STATUS.name, rows)})

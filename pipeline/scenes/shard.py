@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.io.tables import to_table
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 from pipeline.scenes.preview import floor_area
 from pipeline.scenes.scene import Scene, SceneRef

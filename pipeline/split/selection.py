@@ -10,18 +10,17 @@ from __future__ import annotations
 from typing import Any
 
 from pipeline.config import SPLIT_NAMES
-from pipeline.runtime.run_folder import run_root
+from pipeline.store.datasets import dataset_parts, read_dataset
+from pipeline.store.run_folder import RunFolder
 
 
 class UnknownSplitError(ValueError):
     """A split name that is not train, val or test."""
 
 
-def has_split(run: Any) -> bool:
+def has_split(run: RunFolder) -> bool:
     """True when the split stage committed its `splits` table in this run."""
-    from pipeline.io.tables import dataset_parts
-
-    return bool(dataset_parts(run_root(run), "splits"))
+    return bool(dataset_parts(run, "splits"))
 
 
 def check_split_name(split: str) -> str:
@@ -30,14 +29,12 @@ def check_split_name(split: str) -> str:
     return split
 
 
-def split_rows(run: Any) -> list[dict[str, Any]]:
+def split_rows(run: RunFolder) -> list[dict[str, Any]]:
     """Every `splits` row of the run (empty without a split stage)."""
-    from pipeline.io.tables import read_dataset
-
-    return read_dataset(run_root(run), "splits").to_pylist() if has_split(run) else []
+    return read_dataset(run, "splits").to_pylist() if has_split(run) else []
 
 
-def accepted_videos(run: Any, split: str) -> list[tuple[str, str]] | None:
+def accepted_videos(run: RunFolder, split: str) -> list[tuple[str, str]] | None:
     """Sorted (embodiment, video_name) of the accepted videos of `split`; None when the run has no split output.
 
     Accepted = not empty and (train only) showing no unseen object, as the authors' loader filters with
@@ -49,10 +46,8 @@ def accepted_videos(run: Any, split: str) -> list[tuple[str, str]] | None:
     return sorted((r["embodiment"], r["video_name"]) for r in split_rows(run) if r["split"] == split and r["accepted"])
 
 
-def zero_shot_objects(run: Any) -> set[tuple[str, int]]:
+def zero_shot_objects(run: RunFolder) -> set[tuple[str, int]]:
     """(scene_id, object_id) of every unseen (zero-shot) object instance; empty without split output."""
-    from pipeline.io.tables import read_dataset
-
-    table = read_dataset(run_root(run), "zero_shot_instances")
+    table = read_dataset(run, "zero_shot_instances")
     return {(s, int(o)) for s, o, unseen in zip(table.column("scene_id").to_pylist(), table.column("object_id").to_pylist(),
                                                 table.column("unseen").to_pylist()) if unseen}

@@ -35,7 +35,8 @@ from pipeline.split.zero_shot import Instance, Video, ZeroShotError, ZeroShotSpl
 if TYPE_CHECKING:
     import duckdb
 
-    from pipeline.runtime.run_folder import Marker, RunFolder
+    from pipeline.store.markers import Marker
+    from pipeline.store.run_folder import RunFolder
 
 ZERO_SHOT_UNIT = "zero-shot"
 EMPTY_PREFIX = "empty."
@@ -64,8 +65,8 @@ def _connect(run: "RunFolder", *datasets: str) -> "duckdb.DuckDBPyConnection":
     from pipeline.io.query import connect
 
     for dataset in datasets:
-        if not dataset_parts(run.root, dataset):
-            raise SplitInputError(f"{run.root / dataset}: no rows; run the stage that writes {dataset} first (mvpd status RUN)")
+        if not dataset_parts(run, dataset):
+            raise SplitInputError(f"{run.location}/{dataset}: no rows; run the stage that writes {dataset} first (mvpd status RUN)")
     return connect(run, only=datasets)
 
 
@@ -201,7 +202,7 @@ class SplitAssigner(Stage):
             return []
         screened = run.markers("screen")
         if ZERO_SHOT_UNIT not in screened:
-            raise ScreenNotDoneError(f"{run.root}: the screen stage's zero-shot unit has not finished; see `mvpd status` "
+            raise ScreenNotDoneError(f"{run.location}: the screen stage's zero-shot unit has not finished; see `mvpd status` "
                                   "and run `mvpd rerun RUN --stage screen`")
         upstream = _fingerprint(screened)
         return [Unit(name, {"split": name, "screen": upstream}) for name in sorted(SPLIT_NAMES)]

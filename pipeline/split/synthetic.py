@@ -15,8 +15,8 @@ from typing import Any
 import pyarrow as pa
 
 from pipeline.io.tables import spec
-from pipeline.runtime.executor import commit_tables
-from pipeline.runtime.run_folder import Marker, RunFolder
+from pipeline.store.markers import Marker
+from pipeline.store.run_folder import RunFolder
 
 
 def neutral_rows(dataset: str, rows: Iterable[dict[str, Any]]) -> pa.Table:
@@ -45,7 +45,7 @@ def neutral_rows(dataset: str, rows: Iterable[dict[str, Any]]) -> pa.Table:
 def write_dataset(run: RunFolder, dataset: str, table: pa.Table, part: str = "synthetic") -> None:
     """Commit one part file of a dataset into the run, as a unit of the pseudo-stage `_synthetic` (readers
     trust only parts a marker names; the registered schema is enforced by `write_part`)."""
-    commit_tables(run, "_synthetic", f"{dataset}.{part}", {dataset: table})
+    run.commit_tables("_synthetic", f"{dataset}.{part}", {dataset: table})
 
 
 def mark_done(run: RunFolder, stage: str, unit_ids: Iterable[str], config_hash: str = "synthetic") -> None:

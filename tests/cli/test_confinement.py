@@ -12,8 +12,7 @@ from typer.testing import CliRunner
 from pipeline.cli.main import app
 from pipeline.config import load_job
 from pipeline.io.tables import spec
-from pipeline.runtime.executor import commit_tables
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 
 runner = CliRunner()
 JOB = "name: t\nscenes: {procedural: {count: 1}}\nembodiments: [{name: e}]\n"
@@ -46,8 +45,8 @@ def make_run(root: Path) -> RunFolder:
     run = RunFolder.create(root, load_job(job_file))
     key = {"embodiment": "e", "video_name": "v"}
     # Committed as plan and render units would (readers trust only parts a marker names).
-    commit_tables(run, "plan", "s.e", {"frames": _rows("frames", 3, **key, px=1.5)})
-    commit_tables(run, "render", "e.v", {
+    run.commit_tables("plan", "s.e", {"frames": _rows("frames", 3, **key, px=1.5)})
+    run.commit_tables("render", "e.v", {
         "frame_stats": _rows("frame_stats", 3, **key, visible_objects=2, void_fraction=0.25),
         "videos": _rows("videos", 1, **key, scene_id="s", frames=3),
         "segments": _rows("segments", 3, **key, object_id=7, category=3, area=10)})
@@ -105,7 +104,7 @@ def test_connection_configuration_is_locked(run):
 def test_run_names_with_glob_characters_work_in_query_and_stats(tmp_path, name):
     run = make_run(tmp_path / name)
     decoy = make_run(tmp_path / "v")  # what `[v1]` would match as a pattern: must not be read
-    commit_tables(decoy, "plan", "extra", {"frames": _rows("frames", 5, embodiment="e", video_name="w")})
+    decoy.commit_tables("plan", "extra", {"frames": _rows("frames", 5, embodiment="e", video_name="w")})
     result = invoke("query", run.root, "select count(*) from frames", "--format", "csv")
     assert result.exit_code == 0, result.output
     assert result.output.splitlines()[1] == "3"

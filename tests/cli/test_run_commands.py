@@ -6,7 +6,7 @@ from __future__ import annotations
 from typer.testing import CliRunner
 
 from pipeline.cli.main import app
-from pipeline.runtime.lock import RunLock
+from pipeline.store.lock import RunLock
 
 runner = CliRunner()
 GOOD = "name: t\nscenes: {procedural: {count: 1}}\nembodiments: [{name: e}]\n"
@@ -56,7 +56,7 @@ def test_unknown_stage_is_a_usage_error(tmp_path):
 
 def test_query_with_bad_sql_names_the_tables(tmp_path):
     from pipeline.config import load_job
-    from pipeline.runtime.run_folder import RunFolder
+    from pipeline.store.run_folder import RunFolder
 
     job = tmp_path / "job.yaml"
     job.write_text(GOOD)

@@ -12,7 +12,7 @@ import ray.cloudpickle
 
 from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources
 from pipeline.runtime.executor import run_stage
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 
 UNITS = 8

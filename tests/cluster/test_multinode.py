@@ -22,7 +22,9 @@ from typing import Iterator
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.runtime.markers import STATUS_STAGE, Marker, stage_markers
+from pipeline.store.markers import Marker
+from pipeline.store.names import STATUS_STAGE
+from pipeline.store.run_folder import as_run
 from tests.demo_run import DEMO_SHAPED_JOB, demo_shaped_run
 
 HERE = Path(__file__).resolve().parent
@@ -149,7 +151,7 @@ def render_unit_running_on(run: Path, node: str) -> str | None:
 
 def all_markers(run: Path) -> dict[str, dict[str, Marker]]:
     stages = sorted(p.name for p in (run / "_state").iterdir() if p.is_dir() and not p.name.startswith("_"))
-    return {stage: stage_markers(run, stage) for stage in stages}
+    return {stage: as_run(run).markers(stage) for stage in stages}
 
 
 def test_units_ran_on_both_nodes_and_record_their_node(cluster: TwoNodeCluster, lost_node_run) -> None:
@@ -165,7 +167,7 @@ def test_units_of_the_lost_node_run_again_and_the_output_equals_a_single_node_ru
     markers = [m for stage in all_markers(run).values() for m in stage.values()]
     assert all(m.node == cluster.head for m in markers if m.finished_at > removed_at)  # nothing from a dead node
     # The unit that was running on the lost node ran again on the head: Ray's retry shows in its attempt.
-    marker = stage_markers(run, "render")[lost_unit]
+    marker = as_run(run).markers("render")[lost_unit]
     assert marker.node == cluster.head and marker.attempt == 2, (marker.node, marker.attempt)
     assert "Ray retry 1" in (run / "logs" / "render" / f"{lost_unit}.log").read_text()
     code, output = finish(mvpd("rerun", str(run), "--stage", "render", "--address", cluster.address))

@@ -18,8 +18,8 @@ from pipeline.evaluate.report import result_from_table
 from pipeline.evaluate.stage import EvaluationInputs, VsqEvaluator
 from pipeline.io.tables import to_table
 from pipeline.io.zarr_video import VideoWriter
-from pipeline.runtime.executor import commit_tables, plan_stage, run_unit_locally
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.runtime.executor import plan_stage, run_unit_locally
+from pipeline.store.run_folder import RunFolder
 
 CASE = Path(__file__).resolve().parents[1] / "data" / "vsq_small"
 NAME = "proc-000000.0000000000.0000001000"
@@ -40,7 +40,7 @@ def tiny_run(root: Path, frames: int = 17) -> RunFolder:
            "fy": 1.0, "cx": 5.0, "cy": 4.0, "exposure": 1.0, "store_path": f"videos/cam/{NAME}.zarr", "bytes": 0,
            "render_seconds": 0.0}
     # Committed as a render unit would, so `evaluate` may run after it and readers trust the part.
-    commit_tables(run, "render", f"cam.{NAME}", {"videos": to_table("videos", [row])})
+    run.commit_tables("render", f"cam.{NAME}", {"videos": to_table("videos", [row])})
     return run
 
 

@@ -24,7 +24,7 @@ from pipeline.io.training_export import (
     run_splits,
     unsplit,
 )
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from tests.render.tiny_run import FRAMES, render_tiny_run
 from tests.render.tiny_scenes import CHAIR, FLOOR, TABLE, WALL
 
@@ -47,7 +47,7 @@ def exported(tiny_run: RunFolder, tmp_path_factory: pytest.TempPathFactory) -> P
     videos = list_videos(tiny_run)
     splits = {"train": [v for v in videos if v[0] == "ambient"], "val": [("spot", "room.0000000000.0000001000")]}
     out = tmp_path_factory.mktemp("out") / "coco"
-    summary = export_training_data(tiny_run.root, out, splits, CocoExporter,
+    summary = export_training_data(tiny_run, out, splits, CocoExporter,
                                    ExportOptions(every=2, categories="mpcat40"))
     assert summary.frames == {"train": 2 * 3, "val": 3}  # frames 0, 2, 4 of 6 per video
     return out
@@ -99,11 +99,11 @@ def test_each_split_has_its_own_file_and_images(exported: Path) -> None:
 
 def test_class_agnostic_export_drops_stuff_on_request_and_is_deterministic(tiny_run: RunFolder,
                                                                             tmp_path: Path) -> None:
-    splits = unsplit(tiny_run.root)
+    splits = unsplit(tiny_run)
     options = ExportOptions(embodiment="ambient", drop_stuff=True)
     first, second = tmp_path / "a", tmp_path / "b"
     for out in (first, second):
-        export_training_data(tiny_run.root, out, splits, CocoExporter, options)
+        export_training_data(tiny_run, out, splits, CocoExporter, options)
     data = json.loads(annotation_file(first, "all").read_text())
     assert data["categories"] == [{"id": 1, "name": "object", "supercategory": "object", "isthing": 1}]
     assert len(data["images"]) == 2 * FRAMES and {i["embodiment"] for i in data["images"]} == {"ambient"}
@@ -198,7 +198,7 @@ def test_a_failed_export_leaves_no_temporary_file(tiny_run: RunFolder, tmp_path:
 
     monkeypatch.setattr(training_export, "write_jpeg", broken_jpeg)
     with pytest.raises(OSError, match="disk full"):
-        export_training_data(tiny_run.root, tmp_path / "out", unsplit(tiny_run.root), CocoExporter, ExportOptions())
+        export_training_data(tiny_run, tmp_path / "out", unsplit(tiny_run), CocoExporter, ExportOptions())
     assert [p for p in (tmp_path / "out").rglob("*") if p.is_file()] == []
 
 

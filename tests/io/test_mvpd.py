@@ -32,8 +32,7 @@ from pipeline.io.mvpd.layout import (
 )
 from pipeline.io.tables import to_table
 from pipeline.io.zarr_video import VideoWriter, open_video
-from pipeline.runtime.executor import commit_tables
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 
 SAMPLE = Path(__file__).resolve().parents[1] / "data" / "vsq_small" / "MVPd"
 WIDTH, HEIGHT, FRAMES = 64, 48, 5
@@ -143,7 +142,7 @@ def write_video(run: RunFolder, job: Job, name: str, frames: list[dict[str, np.n
            "height_m": attributes["height_m"], "illumination": "ambient", "sensor_model": "ideal", "frames": FRAMES,
            "width": WIDTH, "height": HEIGHT, "fx": fx, "fy": fy, "cx": cx, "cy": cy, "exposure": float("nan"),
            "store_path": f"videos/{embodiment.name}/{name}.zarr", "bytes": 0, "render_seconds": 0.0}
-    commit_tables(run, "render", name, {"videos": to_table("videos", [row])})
+    run.commit_tables("render", name, {"videos": to_table("videos", [row])})
 
 
 def write_objects(run: RunFolder) -> None:
@@ -152,7 +151,7 @@ def write_objects(run: RunFolder) -> None:
              "mpcat40_name": "x", "is_stuff": cat in (1, 2, 17), "region": -1, "triangles": 10, "min_x": nan,
              "min_y": nan, "min_z": nan, "max_x": nan, "max_y": nan, "max_z": nan, "surface_area": 1.0}
             for obj, cat in OBJECTS.items()]
-    commit_tables(run, "shard", SCENE, {"objects": to_table("objects", rows)})
+    run.commit_tables("shard", SCENE, {"objects": to_table("objects", rows)})
 
 
 @pytest.fixture(scope="module")
@@ -175,7 +174,7 @@ def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[RunFolder, dict[
 def exported(tiny_run: tuple[RunFolder, dict], tmp_path_factory: pytest.TempPathFactory) -> Path:
     run, _ = tiny_run
     out = tmp_path_factory.mktemp("release") / "MVPd"
-    summary = export_release(run.root, out, split="test")
+    summary = export_release(run, out, split="test")
     assert summary.videos == 2 and summary.frames == 2 * FRAMES
     return out
 
@@ -265,10 +264,10 @@ def test_export_is_deterministic_and_train_keeps_every_video(tiny_run: tuple[Run
     first, second = tmp_path / "a", tmp_path / "b"
     # One process per core: the same files whether the videos go to one process or to two workers.
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})
-    export_release(run.root, first, split="train")
+    export_release(run, first, split="train")
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
     monkeypatch.setattr(mvpd_export, "FRAMES_PER_WORKER", 1)  # the tiny run's videos are worth a worker each
-    export_release(run.root, second, split="train")
+    export_release(run, second, split="train")
     files = sorted(p.relative_to(first) for p in first.rglob("*") if p.is_file())
     assert len(files) == 2 * FRAMES * 3 + 3  # three files per frame, three JSON files
     assert all((first / f).read_bytes() == (second / f).read_bytes() for f in files)
@@ -280,7 +279,7 @@ def test_export_refuses_to_overwrite_and_leaves_no_partial_folder(tiny_run: tupl
                                                                   exported: Path) -> None:
     run, _ = tiny_run
     with pytest.raises(MvpdExportError, match="--overwrite"):
-        export_release(run.root, exported, split="test")
+        export_release(run, exported, split="test")
     assert sorted(p.name for p in exported.iterdir()) == ["test"]
 
 
@@ -291,7 +290,7 @@ def test_export_of_an_object_missing_from_the_objects_table_fails_cleanly(tiny_r
     shutil.copytree(run.root, copy)
     shutil.rmtree(copy / "objects")
     with pytest.raises(MvpdExportError, match="not in the objects table"):
-        export_release(copy, tmp_path / "out", split="val")
+        export_release(RunFolder(copy), tmp_path / "out", split="val")
     assert not (tmp_path / "out" / "val").exists()
     assert [p.name for p in (tmp_path / "out").iterdir()] == []  # the staging folder was removed
 
@@ -348,7 +347,7 @@ def test_reimport_is_idempotent(sample_run: RunFolder) -> None:
 
 def test_export_of_the_imported_example_reproduces_its_masks_and_instances(sample_run: RunFolder,
                                                                            tmp_path: Path) -> None:
-    export_release(sample_run.root, tmp_path, split="test")
+    export_release(sample_run, tmp_path, split="test")
     original = json.loads((SAMPLE / "test" / "panoptic_test.json").read_text())
     again = json.loads((tmp_path / "test" / "panoptic_test.json").read_text())
     # The export writes the full layout (ids, sizes, depth file names): a superset of the sample's compact form.

@@ -8,7 +8,7 @@ import pytest
 import pipeline
 from pipeline.io import reader
 from pipeline.io.reader import VideoNotFoundError, clip_index, iter_clips, iter_frames, list_videos, load_video
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from tests.render.tiny_run import FRAMES, render_tiny_run
 
 HIGH = "room.0000000000.0000001000"

@@ -12,7 +12,7 @@ import yaml
 from pipeline.io.reader import list_videos, load_video
 from pipeline.io.training_export import ExportOptions, TrainingExportError, export_training_data, unsplit
 from pipeline.io.yolo import mask_polygon, polygon_line, yolo_names, YoloExporter
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from tests.render.tiny_run import FRAMES, render_tiny_run
 
 
@@ -38,7 +38,7 @@ def test_polygons_rasterise_back_to_the_runs_masks(tiny_run: RunFolder, tmp_path
     out = tmp_path / "yolo"
     videos = list_videos(tiny_run)
     splits = {"train": videos[:3], "test": videos[3:]}
-    export_training_data(tiny_run.root, out, splits, YoloExporter, ExportOptions(categories="mpcat40"))
+    export_training_data(tiny_run, out, splits, YoloExporter, ExportOptions(categories="mpcat40"))
     checked = 0
     for split, keys in splits.items():
         for embodiment, name in keys:
@@ -66,7 +66,7 @@ def test_polygons_rasterise_back_to_the_runs_masks(tiny_run: RunFolder, tmp_path
 def test_data_yaml_names_the_splits_and_classes(tiny_run: RunFolder, tmp_path: Path) -> None:
     out = tmp_path / "yolo"
     videos = list_videos(tiny_run)
-    export_training_data(tiny_run.root, out, {"train": videos[:2], "val": videos[2:]}, YoloExporter,
+    export_training_data(tiny_run, out, {"train": videos[:2], "val": videos[2:]}, YoloExporter,
                          ExportOptions(every=5))
     data = yaml.safe_load((out / "data.yaml").read_text())
     assert data == {"path": str(out.resolve()), "train": "images/train", "val": "images/val", "names": {0: "object"}}
@@ -76,7 +76,7 @@ def test_data_yaml_names_the_splits_and_classes(tiny_run: RunFolder, tmp_path: P
 
 def test_without_split_train_and_val_are_the_one_folder(tiny_run: RunFolder, tmp_path: Path) -> None:
     out = tmp_path / "yolo"
-    export_training_data(tiny_run.root, out, unsplit(tiny_run.root), YoloExporter,
+    export_training_data(tiny_run, out, unsplit(tiny_run), YoloExporter,
                          ExportOptions(every=6, embodiment="ambient", drop_stuff=True))
     text = (out / "data.yaml").read_text()
     data = yaml.safe_load(text)
@@ -110,18 +110,18 @@ def test_mpcat40_names_are_zero_based() -> None:
 def test_an_existing_export_needs_overwrite_and_overwrite_replaces_it(tiny_run: RunFolder, tmp_path: Path) -> None:
     out = tmp_path / "yolo"
     options = ExportOptions(every=6, embodiment="spot")
-    export_training_data(tiny_run.root, out, unsplit(tiny_run.root), YoloExporter, options)
+    export_training_data(tiny_run, out, unsplit(tiny_run), YoloExporter, options)
     (out / "labels" / "all" / "stale.txt").write_text("0 0 0 1 0 1 1\n")
     with pytest.raises(TrainingExportError, match="--overwrite"):
-        export_training_data(tiny_run.root, out, unsplit(tiny_run.root), YoloExporter, options)
+        export_training_data(tiny_run, out, unsplit(tiny_run), YoloExporter, options)
     overwrite = ExportOptions(every=6, embodiment="spot", overwrite=True)
-    export_training_data(tiny_run.root, out, unsplit(tiny_run.root), YoloExporter, overwrite)
+    export_training_data(tiny_run, out, unsplit(tiny_run), YoloExporter, overwrite)
     assert not (out / "labels" / "all" / "stale.txt").exists()  # the old export went, not mixed in
 
 
 def test_a_split_naming_a_video_the_run_lacks_is_refused(tiny_run: RunFolder, tmp_path: Path) -> None:
     with pytest.raises(TrainingExportError, match="'room.9'.*rerun the split stage"):
-        export_training_data(tiny_run.root, tmp_path / "yolo", {"train": [("spot", "room.9")]}, YoloExporter,
+        export_training_data(tiny_run, tmp_path / "yolo", {"train": [("spot", "room.9")]}, YoloExporter,
                              ExportOptions())
     assert not (tmp_path / "yolo").exists()
 

@@ -14,6 +14,7 @@ from pipeline.cli.main import app
 from pipeline.evaluate.api import evaluate_run
 from pipeline.io.zarr_video import open_video
 from pipeline.models.predict import ModelConfig, predict_run
+from pipeline.store.run_folder import RunFolder
 from tests.evaluate.reference import reference_video
 
 runner = CliRunner()
@@ -34,8 +35,7 @@ def small_and_thin_run(root: Path) -> Path:
     from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources
     from pipeline.io.tables import to_table
     from pipeline.io.zarr_video import VideoWriter
-    from pipeline.runtime.executor import commit_tables
-    from pipeline.runtime.run_folder import RunFolder
+    from pipeline.store.run_folder import RunFolder
 
     name = "hand.0000000000.0000001000"
     job = Job(name="hand", scenes=SceneSources(procedural=ProceduralSource(count=1)), embodiments=[Embodiment(name="cam")])
@@ -54,24 +54,24 @@ def small_and_thin_run(root: Path) -> Path:
            "illumination": "ambient", "sensor_model": "ideal", "frames": FRAMES, "width": 64, "height": 48, "fx": 50.0,
            "fy": 50.0, "cx": 32.0, "cy": 24.0, "exposure": 1.0, "store_path": f"videos/cam/{name}.zarr", "bytes": 0,
            "render_seconds": 0.0}
-    commit_tables(run, "render", f"cam.{name}", {"videos": to_table("videos", [row])})
+    run.commit_tables("render", f"cam.{name}", {"videos": to_table("videos", [row])})
     return run.root
 
 
 def test_perfect_tracked_predictions_score_1_without_filter_and_the_published_value_with_it(run_root, tmp_path, ray_session) -> None:
     out = tmp_path / "oracle"
     perfect = ModelConfig(name="oracle", options={"tracked": True})
-    report = predict_run(run_root, out, perfect, "ambient")
+    report = predict_run(RunFolder(run_root), out, perfect, "ambient")
     assert not report.failed and report.done == 2
-    exact = evaluate_run(run_root, out, "ambient", overrides={"min_area_fraction": 0.0, "subsample": 1})
+    exact = evaluate_run(RunFolder(run_root), out, "ambient", overrides={"min_area_fraction": 0.0, "subsample": 1})
     assert exact.summary["aggregate"] == {"1": 1.0, "5": 1.0, "10": 1.0, "15": 1.0, "VSQ": 1.0}
     hand = small_and_thin_run(tmp_path / "hand")
-    assert not predict_run(hand, tmp_path / "hand-tracked", perfect).failed
-    assert evaluate_run(hand, tmp_path / "hand-tracked", overrides={"min_area_fraction": 0.0, "subsample": 1}
+    assert not predict_run(RunFolder(hand), tmp_path / "hand-tracked", perfect).failed
+    assert evaluate_run(RunFolder(hand), tmp_path / "hand-tracked", overrides={"min_area_fraction": 0.0, "subsample": 1}
                         ).summary["aggregate"]["VSQ"] == 1.0
     # The published evaluator reads per-frame masks (no ids): the same ground truth, untracked.
-    assert not predict_run(hand, tmp_path / "hand-oracle", ModelConfig(name="oracle")).failed
-    published = evaluate_run(hand, tmp_path / "hand-oracle")
+    assert not predict_run(RunFolder(hand), tmp_path / "hand-oracle", ModelConfig(name="oracle")).failed
+    published = evaluate_run(RunFolder(hand), tmp_path / "hand-oracle")
     truth = np.asarray(open_video(hand / "videos" / "cam" / "hand.0000000000.0000001000.zarr").panoptic[:])
     masks = [np.stack([frame == i for i in np.unique(frame) if i]) for frame in truth]
     expected = reference_video(truth, masks, set())["non-zero-shot"]
@@ -87,10 +87,10 @@ def test_same_seed_same_predictions_byte_for_byte(run_root, tmp_path, ray_sessio
     degraded = ModelConfig(name="oracle", options={"miss": 0.3, "split": 0.3, "merge": 0.2, "boundary_noise": 0.5},
                            self_prompting=True)
     for name in ("a", "b"):
-        assert not predict_run(run_root, tmp_path / name, degraded, "ambient").failed
+        assert not predict_run(RunFolder(run_root), tmp_path / name, degraded, "ambient").failed
     first = _files(tmp_path / "a")
     assert len(first) == 2 * FRAMES and first == _files(tmp_path / "b")
-    assert not predict_run(run_root, tmp_path / "clean", ModelConfig(name="oracle"), "ambient").failed
+    assert not predict_run(RunFolder(run_root), tmp_path / "clean", ModelConfig(name="oracle"), "ambient").failed
     assert _files(tmp_path / "clean") != first  # the degradations did draw
 
 
@@ -114,8 +114,8 @@ def reseal(root: Path, stage: str, unit: str) -> None:
     """Record a unit's edited outputs in its marker, as if the unit had committed them so."""
     from dataclasses import replace
 
-    from pipeline.runtime.markers import describe_files
-    from pipeline.runtime.run_folder import RunFolder
+    from pipeline.store.markers import describe_files
+    from pipeline.store.run_folder import RunFolder
 
     run = RunFolder(root)
     marker = run.marker(stage, unit)

@@ -10,7 +10,7 @@ from pipeline.cli.main import app
 from pipeline.config import Body, Embodiment, Job, PlanConfig, ProceduralSource, SceneSources
 from pipeline.plan.preview import PATH_COLOR
 from pipeline.runtime.executor import run_unit_locally
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.stages import make_stage
 
 

@@ -17,8 +17,8 @@ from pipeline.plan.poses import pose_matrices
 from pipeline.plan.report import plan_reports
 from pipeline.plan.stage import PathPlanner
 from pipeline.plan.synthetic import FLOOR, room_shell, scene_from_boxes, two_rooms
-from pipeline.runtime.executor import commit_tables, run_unit_locally
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.runtime.executor import run_unit_locally
+from pipeline.store.run_folder import RunFolder
 from pipeline.scenes.scene import Scene, SceneRef
 from pipeline.scenes.shard import scene_row
 from pipeline.scenes.sources import load_procedural
@@ -55,7 +55,7 @@ def planned_run(root, job: Job, scene_ids: tuple[str, ...] = (ROOMS,)) -> tuple[
     run = RunFolder.create(root, job)
     for scene_id in scene_ids:
         ref = SceneRef(scene_id, "procedural", "", load_procedural)
-        commit_tables(run, "shard", scene_id, {"scenes": to_table("scenes", [scene_row(SCENES[scene_id], ref)])})
+        run.commit_tables("shard", scene_id, {"scenes": to_table("scenes", [scene_row(SCENES[scene_id], ref)])})
     stage = BoxPlanner(job)
     return run, {unit.id: run_unit_locally(stage, run, unit) for unit in stage.units(run)}
 

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from pipeline.cli.main import app
 from pipeline.render.preview import GAP, id_colors, sheet_frames
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from tests.render.tiny_run import render_tiny_run
 
 HIGH = "room.0000000000.0000001000"

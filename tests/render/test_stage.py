@@ -9,7 +9,7 @@ import pytest
 
 from pipeline.io.zarr_video import open_video
 from pipeline.render.stage import RenderInputError, read_poses
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.scenes.categories import STUFF_CATEGORIES
 from tests.render.tiny_run import FRAMES, RoomRenderer, render_tiny_run, tiny_job
 from tests.render.tiny_scenes import CATEGORIES

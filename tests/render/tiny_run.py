@@ -10,8 +10,8 @@ from pipeline.config import Illumination, Job, ProceduralSource, RenderConfig, S
 from pipeline.io.tables import to_table
 from pipeline.plan.poses import level_camera_rotations, matrix_to_quaternion
 from pipeline.render.stage import RgbdRenderer
-from pipeline.runtime.executor import commit_tables, run_unit_locally
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.runtime.executor import run_unit_locally
+from pipeline.store.run_folder import RunFolder
 from pipeline.scenes.scene import Scene
 from tests.render.tiny_scenes import embodiment, room_scene
 
@@ -54,7 +54,7 @@ def write_plan(run: RunFolder, job: Job) -> None:
                 qw, qx, qy, qz = quaternions[t]
                 frames.append({"embodiment": body.name, "video_name": name, "frame": t, "px": 0.0, "py": height,
                                "pz": -1.5 + 0.05 * t, "qw": qw, "qx": qx, "qy": qy, "qz": qz})
-    commit_tables(run, "plan", "room", {"trajectories": to_table("trajectories", trajectories),
+    run.commit_tables("plan", "room", {"trajectories": to_table("trajectories", trajectories),
                                         "frames": to_table("frames", frames)})
 
 

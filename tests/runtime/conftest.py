@@ -10,6 +10,6 @@ def _forget_tiny_table():
     """The tiny stage's table is registered for these tests only: take it out of the registry afterwards
     (the tiny stage registers it again whenever it runs in this process, e.g. on the inline executor)."""
     yield
-    from pipeline.runtime import tables
+    from pipeline.store import tables
 
     tables._REGISTRY.pop("tiny", None)

@@ -10,7 +10,7 @@ import ray.cloudpickle
 from pipeline.config import Embodiment, Job, SceneSources, ProceduralSource
 from pipeline.io.query import query
 from pipeline.runtime.executor import run_stage
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.status import read_status
 from tests.runtime import tiny_stage
 from tests.runtime.tiny_stage import QuickTimeoutStage, TinyStage, UnsendableStage
@@ -48,7 +48,7 @@ def test_failing_unit_is_reported_others_finish_and_rerun_runs_exactly_it(ray_se
     assert [o.unit for o in report.failed] == ["b"]
     assert report.failed[0].error_type == "ValueError" and "told to fail" in report.failed[0].message
     assert sorted(values(run)) == ["a", "c"]
-    status = read_status(run.root, "tiny")
+    status = read_status(run, "tiny")
     assert status[("tiny", "b")].state == "failed" and status[("tiny", "a")].state == "done"
     assert "told to fail" in (run.root / status[("tiny", "b")].log_path).read_text()
     assert run.marker("tiny", "b") is None
@@ -56,7 +56,7 @@ def test_failing_unit_is_reported_others_finish_and_rerun_runs_exactly_it(ray_se
     (run.root / "control" / "b.fail").unlink()  # the cause is fixed
     again = run_stage(TinyStage(run.job()), run)
     assert [o.unit for o in again.outcomes] == ["b"] and not again.failed
-    assert read_status(run.root, "tiny")[("tiny", "b")].attempt == 2  # 1 failed + 1 good
+    assert read_status(run, "tiny")[("tiny", "b")].attempt == 2  # 1 failed + 1 good
     assert sorted(values(run)) == ["a", "b", "c"]
 
 
@@ -115,4 +115,4 @@ def test_a_task_ray_could_not_start_counts_one_attempt(ray_session, run):
     report = run_stage(UnsendableStage(run.job()), run, executor="ray")
     assert sorted(o.unit for o in report.failed) == ["a", "b", "c"]
     assert {o.attempt for o in report.failed} == {1}
-    assert {o.attempt for o in read_status(run.root).values()} == {1}
+    assert {o.attempt for o in read_status(run).values()} == {1}

@@ -18,6 +18,7 @@ from typer.testing import CliRunner
 
 from pipeline.cli.main import app
 from pipeline.runtime.status import read_status
+from pipeline.store.run_folder import RunFolder
 
 JOB = "name: t\nseed: 0\nscenes: {procedural: {count: 2, seed: 0, detail: 0.05}}\nembodiments: [{name: e}]\n"
 
@@ -62,7 +63,7 @@ def test_units_on_a_full_disk_fail_with_path_and_free_space_and_a_rerun_complete
         result = invoke("submit", job, "--run-dir", run, "--stages", "shard", "--executor", "local")
     assert result.exit_code == 1 and not isinstance(result.exception, OSError), result.output
     assert "1 done, 1 failed" in result.output and "Traceback" not in result.output, result.output
-    failed = read_status(run)[("shard", units[1])]
+    failed = read_status(RunFolder(run))[("shard", units[1])]
     assert failed.state == "failed" and f"_staging/shard/{units[1]}." in failed.message
     assert "no space left on device (" in failed.message and " MiB free)" in failed.message, failed.message
     status = invoke("status", run)

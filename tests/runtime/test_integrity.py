@@ -20,10 +20,10 @@ from typer.testing import CliRunner
 from pipeline.cli.main import app
 from pipeline.io.reader import VideoDamagedError, load_video
 from pipeline.runtime.executor import plan_stage, run_stage
-from pipeline.runtime.markers import file_checksum
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.markers import file_checksum
+from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.status import read_status
-from pipeline.runtime.tables import damaged_parts, dataset_parts
+from pipeline.store.datasets import damaged_parts, dataset_parts
 from tests.runtime import tiny_stage
 from tests.runtime.test_executor import make_job
 from tests.runtime.tiny_stage import TinyStage
@@ -70,7 +70,7 @@ def test_marker_lists_every_file_with_its_size_and_checksum(tiny):
     for entry in marker.files:
         assert entry.size == (tiny.root / entry.path).stat().st_size
         assert entry.crc32c == file_checksum(tiny.root / entry.path)
-    assert dataset_parts(tiny.root, "tiny") == [tiny.root / "tiny" / f"part-{u}.parquet" for u in "abc"]
+    assert dataset_parts(tiny, "tiny") == [tiny.root / "tiny" / f"part-{u}.parquet" for u in "abc"]
 
 
 def test_a_part_no_marker_names_is_not_read(tiny):
@@ -82,7 +82,7 @@ def test_a_part_no_marker_names_is_not_read(tiny):
 def test_truncated_part_makes_its_unit_damaged_and_a_rerun_rewrites_exactly_it(tiny):
     clean = digest(tiny.root, ("tiny", "tiny_files"))
     truncate(tiny.root / "tiny" / "part-b.parquet")
-    assert [d.unit for d in damaged_parts(tiny.root, "tiny")] == ["b"]
+    assert [d.unit for d in damaged_parts(tiny, "tiny")] == ["b"]
     assert sorted(r["unit"] for r in tiny.read("tiny").to_pylist()) == ["a", "c"]  # read on, without b
     plan = plan_stage(TinyStage(tiny.job()), tiny)
     assert [u.id for u in plan.to_run] == ["b"] and list(plan.damaged) == ["b"]
@@ -130,11 +130,11 @@ def test_truncated_status_part_is_reported_rebuilt_from_markers_and_rewritten(ti
     part = tiny.root / "status" / "part-tiny.parquet"
     clean = part.read_bytes()
     truncate(part)
-    assert [d.unit for d in damaged_parts(tiny.root, "status")] == ["tiny"]
-    statuses = read_status(tiny.root, "tiny")  # no traceback: the outcomes come from the markers
+    assert [d.unit for d in damaged_parts(tiny, "status")] == ["tiny"]
+    statuses = read_status(tiny, "tiny")  # no traceback: the outcomes come from the markers
     assert sorted(u for _, u in statuses) == ["a", "b", "c"] and {o.state for o in statuses.values()} == {"done"}
     report = run_stage(TinyStage(tiny.job()), tiny, executor="local")
-    assert report.outcomes == [] and damaged_parts(tiny.root, "status") == []
+    assert report.outcomes == [] and damaged_parts(tiny, "status") == []
     assert parquet_rows(part.read_bytes()) == parquet_rows(clean)  # same outcomes, written again
 
 
@@ -167,7 +167,7 @@ def test_killed_worker_retry_is_recorded_as_attempt_2_with_the_reason(ray_sessio
     report = run_stage(TinyStage(run.job()), run, executor="ray")
     assert (run.root / "control" / "b.killed").exists() and not report.failed
     assert run.marker("tiny", "b").attempt == 2 and run.marker("tiny", "a").attempt == 1
-    statuses = read_status(run.root, "tiny")
+    statuses = read_status(run, "tiny")
     assert statuses[("tiny", "b")].attempt == 2 and statuses[("tiny", "a")].attempt == 1
     log_text = (run.root / statuses[("tiny", "b")].log_path).read_text()
     assert "attempt 2" in log_text and "Ray retry 1" in log_text
@@ -213,7 +213,7 @@ def test_deleted_zarr_shard_is_named_by_status_and_rerun_restores_the_video(job_
     video = shard.relative_to(run / "videos" / "tiny").parts[0].removesuffix(".zarr")
     shard.unlink()
     assert len(RunFolder(run).read("videos")) == 1  # readers leave the damaged video out ...
-    assert [d.path for d in damaged_parts(run, "videos")] == [shard.relative_to(run).as_posix()]  # ... and say why
+    assert [d.path for d in damaged_parts(RunFolder(run), "videos")] == [shard.relative_to(run).as_posix()]  # ... and say why
     with pytest.raises(VideoDamagedError, match="is missing"):  # no silent zeros where the shard was
         load_video(run, video, "tiny")
     result = invoke("status", run)

@@ -10,8 +10,8 @@ import pytest
 import ray.cloudpickle
 
 from pipeline.runtime.executor import run_stage
-from pipeline.runtime.lock import LeaseLostError
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.lock import LeaseLostError
+from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.status import read_status
 from tests.runtime import tiny_stage
 from tests.runtime.test_executor import make_job
@@ -38,7 +38,7 @@ def test_inline_units_stop_committing_once_the_lock_is_taken_over(run):
             run_stage(TinyStage(run.job()), run, executor="local", on_unit=lambda outcome: take_over(run))
     assert "\n" not in str(stopped.value)
     assert sorted(run.markers("tiny")) == ["a"]  # the first unit committed before the takeover, no other
-    assert read_status(run.root, "tiny") == {}  # nor the status table
+    assert read_status(run, "tiny") == {}  # nor the status table
     assert json.loads((run.root / "_state" / "lock.json").read_text())["owner"] == "elsewhere.7.0"  # left alone
 
 

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from pipeline.runtime.lock import RunLock, RunLockedError
+from pipeline.store.lock import RunLock, RunLockedError
 
 
 def test_second_lock_on_a_live_run_is_refused(tmp_path):

@@ -11,12 +11,12 @@ from pathlib import Path
 import fsspec
 import pytest
 
-from pipeline.runtime import marker_index
+from pipeline.store import marker_index
 from pipeline.runtime.executor import run_stage
-from pipeline.runtime.marker_index import INDEX_NAME, FsspecMarkerFolder, LocalMarkerFolder, load_markers, write_index
-from pipeline.runtime.markers import (Damage, Marker, OutputFile, check_files, marker_path, marker_text, parse_marker,
-                                      record_damage, stage_markers, unit_damage, write_marker)
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.marker_index import INDEX_NAME, FsspecMarkerFolder, LocalMarkerFolder, load_markers, write_index
+from pipeline.store.markers import Damage, Marker, OutputFile, marker_text, parse_marker
+from pipeline.store.run_folder import RunFolder
+from pipeline.store.run_folder import as_run
 from tests.runtime.test_executor import make_job
 from tests.runtime.tiny_stage import TinyStage
 
@@ -42,7 +42,7 @@ def every_json(root: Path, stage: str) -> dict[str, Marker]:
 @pytest.fixture
 def root(tmp_path) -> Path:
     for index in range(6):
-        write_marker(tmp_path, a_marker(f"u{index}", files=index + 1))
+        as_run(tmp_path).write_marker(a_marker(f"u{index}", files=index + 1))
     return tmp_path
 
 
@@ -60,9 +60,9 @@ def test_markers_come_from_the_index_and_only_changed_ones_are_read(root):
     folder = CountingFolder(root, STAGE)
     assert write_index(folder) == 6 and (root / "_state" / STAGE / INDEX_NAME).is_file()
     assert load_markers(folder) == every_json(root, STAGE) and CountingFolder.read == []
-    write_marker(root, a_marker("u2", files=9, seconds=7.0))  # rewritten after the index
-    marker_path(root, STAGE, "u4").unlink()  # deleted after the index
-    write_marker(root, a_marker("u9"))  # new
+    as_run(root).write_marker(a_marker("u2", files=9, seconds=7.0))  # rewritten after the index
+    (root / "_state" / STAGE / "u4.json").unlink()  # deleted after the index
+    as_run(root).write_marker(a_marker("u9"))  # new
     found = load_markers(folder)
     assert CountingFolder.read == ["u2.json", "u9.json"]
     assert found == every_json(root, STAGE) and list(found) == list(every_json(root, STAGE))
@@ -71,21 +71,21 @@ def test_markers_come_from_the_index_and_only_changed_ones_are_read(root):
 
 def test_a_rewrite_of_the_same_size_and_mtime_is_still_seen(root):
     write_index(LocalMarkerFolder(root, STAGE))
-    path = marker_path(root, STAGE, "u3")
+    path = (root / "_state" / STAGE / "u3.json")
     before = path.stat()
     changed = replace(a_marker("u3", files=4), host="hozt")  # same size, other content
     assert len(marker_text(changed)) == before.st_size
-    write_marker(root, changed)
+    as_run(root).write_marker(changed)
     os.utime(path, ns=(before.st_atime_ns, before.st_mtime_ns))
-    assert stage_markers(root, STAGE)["u3"].host == "hozt"
+    assert as_run(root).markers(STAGE)["u3"].host == "hozt"
 
 
 def test_version_1_and_unreadable_markers_count_as_absent_from_the_index_too(root):
-    folder = marker_path(root, STAGE, "x").parent
+    folder = (root / "_state" / STAGE / "x.json").parent
     (folder / "old.json").write_text(json.dumps({"stage": STAGE, "unit": "old", "version": 1}), encoding="utf-8")
     (folder / "bad.json").write_text("{not json", encoding="utf-8")
     write_index(LocalMarkerFolder(root, STAGE))
-    assert set(stage_markers(root, STAGE)) == {f"u{i}" for i in range(6)} == set(every_json(root, STAGE))
+    assert set(as_run(root).markers(STAGE)) == {f"u{i}" for i in range(6)} == set(every_json(root, STAGE))
 
 
 @pytest.mark.parametrize("damage", [b"", b"PAR1 not parquet", b"\x00" * 64])
@@ -93,7 +93,7 @@ def test_a_damaged_index_is_ignored_and_rebuilt(root, monkeypatch, damage):
     monkeypatch.setattr(marker_index, "REFRESH_AFTER", 1)
     index = root / "_state" / STAGE / INDEX_NAME
     index.write_bytes(damage)
-    assert stage_markers(root, STAGE) == every_json(root, STAGE)
+    assert as_run(root).markers(STAGE) == every_json(root, STAGE)
     assert index.read_bytes() != damage  # rewritten by the reader (the folder is writable)
     CountingFolder.read = ["sentinel"]
     assert load_markers(CountingFolder(root, STAGE)) == every_json(root, STAGE) and CountingFolder.read == []
@@ -105,7 +105,7 @@ def test_an_index_of_another_schema_is_not_trusted(root):
 
     lying = pa.table({"name": ["u0.json"], "identity": ["x"], "header": ["{}"]})
     pq.write_table(lying, root / "_state" / STAGE / INDEX_NAME)
-    assert stage_markers(root, STAGE) == every_json(root, STAGE)
+    assert as_run(root).markers(STAGE) == every_json(root, STAGE)
 
 
 def test_a_read_only_folder_is_read_without_an_index(root, monkeypatch):
@@ -114,7 +114,7 @@ def test_a_read_only_folder_is_read_without_an_index(root, monkeypatch):
 
     monkeypatch.setattr(marker_index, "REFRESH_AFTER", 1)
     monkeypatch.setattr(LocalMarkerFolder, "write_index", refuse)
-    assert stage_markers(root, STAGE) == every_json(root, STAGE)
+    assert as_run(root).markers(STAGE) == every_json(root, STAGE)
     assert not (root / "_state" / STAGE / INDEX_NAME).exists()
 
 
@@ -147,14 +147,14 @@ def test_check_files_finds_missing_resized_misplaced_and_recorded_damage(tmp_pat
     for entry in marker.files:
         (tmp_path / entry.path).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / entry.path).write_bytes(b"x" * entry.size)
-    write_marker(tmp_path, marker)
-    assert check_files(marker, tmp_path) == []
+    as_run(tmp_path).write_marker(marker)
+    assert as_run(tmp_path).check_files(marker) == []
     (tmp_path / marker.files[0].path).unlink()
     (tmp_path / marker.files[1].path).write_bytes(b"xx")
     misplaced = OutputFile(f"{marker.files[2].path}/inner.bin", 1, "0")  # its "folder" is a file
     marker.files.append(misplaced)
-    record_damage(tmp_path, marker, [Damage(STAGE, "u0", marker.files[3].path, "is unreadable Parquet")])
-    assert [(d.path, d.problem) for d in check_files(marker, tmp_path)] == [
+    as_run(tmp_path).record_damage(STAGE, [(marker, [Damage(STAGE, "u0", marker.files[3].path, "is unreadable Parquet")])])
+    assert [(d.path, d.problem) for d in as_run(tmp_path).check_files(marker)] == [
         (marker.files[0].path, "is missing"), (marker.files[1].path, "has 2 bytes, the marker says 5"),
         (misplaced.path, "is missing"), (marker.files[3].path, "is unreadable Parquet")]
 
@@ -167,7 +167,7 @@ def test_unit_damage_names_exactly_the_units_with_a_missing_or_resized_file(tmp_
             (tmp_path / entry.path).parent.mkdir(parents=True, exist_ok=True)
             (tmp_path / entry.path).write_bytes(b"x" * (entry.size if index % 3 else 1))  # 0 mod 3: resized
         found[marker.unit] = marker
-    damaged = unit_damage(tmp_path, found)
+    damaged = as_run(tmp_path).damage(found)
     assert sorted(set(found) - set(damaged)) == ["u07", "u11", "u19", "u23", "u31", "u35"]
     assert damaged["u05"][0].problem == "is missing" and "has 1 bytes" in damaged["u03"][0].problem
 
@@ -177,11 +177,11 @@ def test_a_marker_from_the_index_checks_pickles_and_compares_like_one_from_its_f
     for entry in marker.files[1:]:
         (tmp_path / entry.path).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / entry.path).write_bytes(b"x" * (entry.size if entry.size != 6 else 2))
-    write_marker(tmp_path, marker)
+    as_run(tmp_path).write_marker(marker)
     write_index(LocalMarkerFolder(tmp_path, STAGE))
-    indexed = stage_markers(tmp_path, STAGE)["u0"]
+    indexed = as_run(tmp_path).markers(STAGE)["u0"]
     assert "_manifest" in indexed.__dict__  # still columnar: the check below must not need `files`
-    assert check_files(indexed, tmp_path) == check_files(marker, tmp_path) != []
+    assert as_run(tmp_path).check_files(indexed) == as_run(tmp_path).check_files(marker) != []
     assert "_manifest" in indexed.__dict__
     copy = pickle.loads(pickle.dumps(indexed))
     assert copy == marker and copy.files == marker.files and marker_text(indexed) == marker_text(marker)
@@ -190,9 +190,9 @@ def test_a_marker_from_the_index_checks_pickles_and_compares_like_one_from_its_f
 def test_an_index_rewritten_from_an_index_keeps_every_marker(root, monkeypatch):
     monkeypatch.setattr(marker_index, "REFRESH_AFTER", 1)
     write_index(LocalMarkerFolder(root, STAGE))
-    write_marker(root, a_marker("u7", files=2))  # one stale row: the reader rewrites from the columnar rows
+    as_run(root).write_marker(a_marker("u7", files=2))  # one stale row: the reader rewrites from the columnar rows
     before = (root / "_state" / STAGE / INDEX_NAME).read_bytes()
-    assert stage_markers(root, STAGE) == every_json(root, STAGE)
+    assert as_run(root).markers(STAGE) == every_json(root, STAGE)
     assert (root / "_state" / STAGE / INDEX_NAME).read_bytes() != before
     CountingFolder.read = ["sentinel"]
     assert load_markers(CountingFolder(root, STAGE)) == every_json(root, STAGE) and CountingFolder.read == []

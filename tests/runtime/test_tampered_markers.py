@@ -17,10 +17,10 @@ from pathlib import Path
 import pytest
 
 from pipeline.runtime.executor import plan_stage, run_stage
-from pipeline.runtime.lock import STALE_SECONDS, RunLock, RunLockedError
-from pipeline.runtime.marker_index import LocalMarkerFolder, _encode
-from pipeline.runtime.markers import OutputFile, marker_text, parse_marker, stage_markers
-from pipeline.runtime.run_folder import RunFolder, RunFolderError
+from pipeline.store.lock import STALE_SECONDS, RunLock, RunLockedError
+from pipeline.store.marker_index import LocalMarkerFolder, _encode
+from pipeline.store.markers import OutputFile, marker_text, parse_marker
+from pipeline.store.run_folder import RunFolder, RunFolderError
 from tests.runtime.test_executor import make_job
 from tests.runtime.tiny_stage import TinyStage
 
@@ -44,12 +44,12 @@ def victims(tmp_path: Path) -> list[Path]:
 
 def test_a_marker_naming_paths_outside_the_run_is_never_followed(tiny, tmp_path):
     beside, absolute = victims(tmp_path)
-    path = tiny.marker_path("tiny", "a")
+    path = (tiny.root / "_state" / "tiny" / "a.json")
     data = json.loads(path.read_text())
     data["outputs"] += ["../victim", str(absolute)]
     data["files"] += [{"path": "../victim/precious.txt", "size": 7, "crc32c": "0"}]
     path.write_text(json.dumps(data))
-    assert tiny.marker("tiny", "a") is None and "a" not in stage_markers(tiny.root, "tiny")
+    assert tiny.marker("tiny", "a") is None and "a" not in tiny.markers("tiny")
     assert [u.id for u in plan_stage(TinyStage(tiny.job()), tiny).to_run] == ["a"]  # not done: it runs again
     report = run_stage(TinyStage(tiny.job()), tiny, force=True, executor="local")
     assert not report.failed and (beside / "precious.txt").is_file() and (absolute / "precious.txt").is_file()
@@ -59,11 +59,11 @@ def test_a_marker_naming_paths_outside_the_run_is_never_followed(tiny, tmp_path)
 @pytest.mark.parametrize("bad", ["job.yaml", "_state/lock.json", "tiny/../../x", "tiny//x", "/tiny/x", "tiny/.x",
                                  "tiny/a\ntiny/b", 7])
 def test_outputs_must_be_plain_paths_of_run_data(tiny, bad):
-    data = json.loads(tiny.marker_path("tiny", "a").read_text())
+    data = json.loads((tiny.root / "_state" / "tiny" / "a.json").read_text())
     data["outputs"].append(bad)
     assert parse_marker(json.dumps(data), "a.json") is None
-    assert parse_marker(tiny.marker_path("tiny", "a").read_text(), "a.json") is not None
-    assert parse_marker(tiny.marker_path("tiny", "a").read_text(), "b.json") is None  # not its own file
+    assert parse_marker((tiny.root / "_state" / "tiny" / "a.json").read_text(), "a.json") is not None
+    assert parse_marker((tiny.root / "_state" / "tiny" / "a.json").read_text(), "b.json") is None  # not its own file
 
 
 def test_a_tampered_marker_index_row_is_never_followed(tiny, tmp_path):
@@ -75,7 +75,7 @@ def test_a_tampered_marker_index_row_is_never_followed(tiny, tmp_path):
                                    files=[*marker.files, OutputFile("../victim/precious.txt", 7, "0")])
     # The row claims the identity of the real marker file, as a forged index would.
     folder.write_index(_encode({"a.json": (listing["a.json"], tampered)}))
-    assert stage_markers(tiny.root, "tiny")["a"].outputs == marker.outputs  # the marker file, read instead
+    assert tiny.markers("tiny")["a"].outputs == marker.outputs  # the marker file, read instead
     run_stage(TinyStage(tiny.job()), tiny, force=True, executor="local")
     assert (beside / "precious.txt").is_file()
 
@@ -94,7 +94,7 @@ def test_commit_refuses_to_delete_through_a_link_out_of_the_run(tiny, tmp_path):
     beside, _ = victims(tmp_path)
     (tiny.root / "linked").symlink_to(beside)
     with pytest.raises(RunFolderError, match="not a plain relative path inside the run"):
-        tiny.commit(tiny.staging("tiny", "a"), [], ["linked/precious.txt"])
+        tiny.files.retire(dataclasses.replace(tiny.marker("tiny", "a"), outputs=["linked/precious.txt"]))
     assert (beside / "precious.txt").is_file()
 
 

@@ -14,7 +14,7 @@ import pyarrow as pa
 
 from pipeline.config import StageResources
 from pipeline.io.tables import column, register, to_table
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 
 

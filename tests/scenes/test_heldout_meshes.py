@@ -9,7 +9,7 @@ import pytest
 from pipeline.config import Job
 from pipeline.render.renderer import VideoRenderer
 from pipeline.runtime.executor import run_unit_locally
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.scenes.scene import Scene
 from pipeline.scenes.shard import SceneSharder
 from pipeline.scenes.sources import load_scene_row

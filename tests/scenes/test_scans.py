@@ -14,7 +14,7 @@ from pipeline.config import Embodiment, Job, PlanConfig
 from pipeline.plan.poses import level_camera_rotations
 from pipeline.render.renderer import VideoRenderer
 from pipeline.runtime.executor import UnitFailedError, run_unit_locally
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.scenes.procedural.house import generate_house
 from pipeline.scenes.scene import Scene
 from pipeline.scenes.shard import SceneSharder

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources, SplitConfig
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.split.synthetic import mark_done, neutral_rows, write_dataset
 
 WIDTH, HEIGHT = 64, 48

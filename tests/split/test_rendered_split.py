@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 from pipeline.cli.main import app
 from pipeline.io.mvpd import export_release_splits, import_release
 from pipeline.io.reader import VideoNotFoundError, clip_index, iter_clips, load_video
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.split.selection import accepted_videos, split_rows, zero_shot_objects
 
 JOB = """
@@ -122,7 +122,7 @@ def test_exported_split_files_load_back_to_the_same_flags(run: RunFolder, tmp_pa
     assert result.output.count("export:") == 3 and sorted(p.name for p in root.iterdir()) == [
         ".mvpd-out", "test", "test.txt", "train", "train.txt", "val", "val.txt"]  # .mvpd-out: export wrote it
     assert result.output.count("warning:") == 1  # camera not MVPd's 640x480 / 69 degrees: the authors' loader hard-codes it
-    assert export_release_splits(run.root, tmp_path / "again")[0].warnings
+    assert export_release_splits(run, tmp_path / "again")[0].warnings
     for split in ("train", "val", "test"):
         ours = {r["video_name"]: r for r in split_rows(run) if r["split"] == split and r["embodiment"] == "ambient"}
         empty = json.loads((root / split / "empty_videos.json").read_text())
@@ -144,11 +144,11 @@ def test_exported_split_files_load_back_to_the_same_flags(run: RunFolder, tmp_pa
         assert "segments_info" in panoptic["annotations"][0]["annotations"][0] and panoptic["instances"]
         back = import_release(root, split, tmp_path / f"back-{split}", embodiment="ambient")
         assert back.failed == []
-        again = {r["video_name"]: r for r in split_rows(back.run_root)}
+        again = {r["video_name"]: r for r in split_rows(RunFolder(back.run_root))}
         keys = ("split", "empty", "zero_shot_rejected", "accepted")
         assert {n: tuple(r[k] for k in keys) for n, r in again.items()} == {n: tuple(r[k] for k in keys) for n, r in ours.items()}
         if split != "train":
-            assert zero_shot_objects(back.run_root) == {o for o in zero_shot_objects(run) if o[0] in scenes}
+            assert zero_shot_objects(RunFolder(back.run_root)) == {o for o in zero_shot_objects(run) if o[0] in scenes}
 
 
 def test_stats_have_per_split_rows_the_comparison_row_and_the_cluster_histogram(run: RunFolder, tmp_path: Path) -> None:

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from pipeline.cli.main import app
 from pipeline.config import SceneSplitConfig, SplitConfig, SplitFractions, SplitLists, ZeroShotConfig
 from pipeline.runtime.executor import plan_stage, run_stage
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.run_folder import RunFolder
 from pipeline.split.encoders import TextEncoder
 from pipeline.split.scenes import assign_scenes
 from pipeline.split.stage import SplitAssigner, VideoScreener

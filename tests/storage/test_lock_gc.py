@@ -15,12 +15,13 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli.main import app
-from pipeline.runtime import lock as lock_module
-from pipeline.runtime.garbage import attempt_prefix, collect_garbage
-from pipeline.runtime.markers import parse_marker
-from pipeline.runtime.lock import LOCK_KEY, RemoteRunLock, RunLockedError
-from pipeline.runtime.object_store import ATTEMPTS, RunStore
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store import lock as lock_module
+from pipeline.store.garbage import attempt_prefix, collect_garbage
+from pipeline.store.markers import parse_marker
+from pipeline.store.lock import LOCK_KEY, RemoteRunLock, RunLockedError
+from pipeline.store.remote import RunStore
+from pipeline.store.names import ATTEMPTS
+from pipeline.store.run_folder import RunFolder
 from tests.storage.conftest import TEST_KEY_ID, TEST_SECRET, S3Server
 from tests.storage.test_s3_run import assert_same_outputs, trusted_bytes_on_store
 
@@ -41,8 +42,8 @@ plan: {trajectories_per_scene: 1, min_frames: 10, max_frames: 30}
 # A driver on "another machine": holds the run's lock until its standard input closes.
 HOLD_LOCK = """
 import sys
-from pipeline.runtime.lock import RemoteRunLock
-from pipeline.runtime.object_store import RunStore
+from pipeline.store.lock import RemoteRunLock
+from pipeline.store.remote import RunStore
 with RemoteRunLock(RunStore(sys.argv[1])):
     print("held", flush=True)
     sys.stdin.read()
@@ -51,7 +52,7 @@ with RemoteRunLock(RunStore(sys.argv[1])):
 # driver while a unit's objects are being uploaded (the PUTs themselves are real ones to the S3 server).
 SLOW_UPLOAD_MVPD = """
 import sys, time
-from pipeline.runtime import object_store
+from pipeline.store import remote as object_store
 real_put_files = object_store.RunStore.put_files
 def one_at_a_time(self, uploads):
     for upload in uploads:

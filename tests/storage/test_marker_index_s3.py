@@ -3,8 +3,8 @@ rewritten or deleted after the index is seen as such."""
 
 from __future__ import annotations
 
-from pipeline.runtime.marker_index import INDEX_NAME, FsspecMarkerFolder, load_markers, write_index
-from pipeline.runtime.markers import marker_text
+from pipeline.store.marker_index import INDEX_NAME, FsspecMarkerFolder, load_markers, write_index
+from pipeline.store.markers import marker_text
 from tests.runtime.test_marker_index import a_marker
 from tests.storage.conftest import BUCKET
 

@@ -17,10 +17,10 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli.main import app
-from pipeline.runtime import lock as lock_module
-from pipeline.runtime.lock import LOCK_KEY, LeaseLostError, RemoteRunLock, RunLockedError
-from pipeline.runtime.object_store import RunStore
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store import lock as lock_module
+from pipeline.store.lock import LOCK_KEY, LeaseLostError, RemoteRunLock, RunLockedError
+from pipeline.store.remote import RunStore
+from pipeline.store.run_folder import RunFolder
 from tests.storage.conftest import S3Server, forget_clients
 from tests.storage.test_lock_gc import TINY_JOB
 from tests.storage.test_s3_run import trusted_bytes_on_store

@@ -16,12 +16,13 @@ from pipeline.cli.main import app
 
 from pipeline.config import Embodiment, Job, ProceduralSource, SceneSources
 from pipeline.runtime.attempt import execute_unit
-from pipeline.runtime.executor import commit_tables
-from pipeline.runtime.lock import LOCK_KEY
-from pipeline.runtime.object_store import ATTEMPTS, RunStore, remote_url
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.lock import LOCK_KEY
+from pipeline.store.remote import RunStore, remote_url
+from pipeline.store.names import ATTEMPTS
+from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
-from pipeline.runtime.tables import read_dataset, to_table
+from pipeline.store.datasets import read_dataset
+from pipeline.store.tables import to_table
 
 
 def outcome_rows(*units: str) -> dict:
@@ -87,7 +88,7 @@ def local_outputs(folder: Path) -> list[Path]:
 
 def test_another_machine_reads_only_what_markers_name_in_place(url, cache, monkeypatch):
     writer = RunFolder.prepare(url)
-    commit_tables(writer, "fixture", "u1", outcome_rows("u1"))
+    writer.commit_tables("fixture", "u1", outcome_rows("u1"))
     store = fsspec.filesystem("memory")
     prefix = url.removeprefix("memory://")
     # An attempt that died after uploading its part: its key exists, no marker names it.
@@ -97,17 +98,17 @@ def test_another_machine_reads_only_what_markers_name_in_place(url, cache, monke
     monkeypatch.setenv("MVPD_CACHE_DIR", str(cache.parent / "other-machine"))
     reader = RunFolder(url)
     assert reader.root != writer.root
-    assert read_dataset(reader.root, "status").column("unit").to_pylist() == ["u1"]
+    assert read_dataset(reader, "status").column("unit").to_pylist() == ["u1"]
     assert local_outputs(reader.root) == [] and local_outputs(writer.root) == []  # read in place, no copy
     # The unit's marker goes from the store (retired elsewhere): its rows go with it at once.
     store.rm_file(f"{prefix}/_state/fixture/u1.json")
-    assert read_dataset(reader.root, "status").num_rows == 0
+    assert read_dataset(reader, "status").num_rows == 0
 
 
 def test_a_commit_replaces_the_previous_attempts_objects(url):
     run = RunFolder.prepare(url)
-    first = commit_tables(run, "fixture", "u1", outcome_rows("u1"))
-    second = commit_tables(run, "fixture", "u1", outcome_rows("u1"))
+    first = run.commit_tables("fixture", "u1", outcome_rows("u1"))
+    second = run.commit_tables("fixture", "u1", outcome_rows("u1"))
     store = fsspec.filesystem("memory")
     prefix = url.removeprefix("memory://")
     assert set(first.keys.values()).isdisjoint(second.keys.values())
@@ -122,23 +123,23 @@ def test_a_failed_upload_fails_the_unit_and_marks_nothing_done(tmp_path):
     run = RunFolder.prepare(url)
     job = Job(name="fixture", seed=0, scenes=SceneSources(procedural=ProceduralSource(count=1)),
               embodiments=[Embodiment(name="a", placements=[1.0])])
-    outcome = execute_unit(TwoTableStage(job), str(run.root), Unit("u1"), attempt=1)
+    outcome = execute_unit(TwoTableStage(job), run, Unit("u1"), attempt=1)
     assert outcome.failed and outcome.error_type == "OSError" and "connection reset" in outcome.message
     assert FailingOnWrite.uploads >= 2
     store = FailingOnWrite()
     prefix = url.removeprefix("failingmem://")
     assert not store.exists(f"{prefix}/_state/fixture/u1.json") and run.marker("fixture", "u1") is None
-    assert read_dataset(run.root, "status").num_rows == 0
+    assert read_dataset(run, "status").num_rows == 0
     # The next attempt (the store works again) commits the unit whole.
     FailingOnWrite.fail_at = -1
     try:
-        assert not execute_unit(TwoTableStage(job), str(run.root), Unit("u1"), attempt=2).failed
+        assert not execute_unit(TwoTableStage(job), run, Unit("u1"), attempt=2).failed
     finally:
         FailingOnWrite.fail_at = 2
     marker = run.marker("fixture", "u1")
     assert marker is not None and sorted(marker.keys) == ["extra/notes.txt", "status/part-u1.parquet"]
     assert store.exists(f"{prefix}/_state/fixture/u1.json")
-    assert read_dataset(run.root, "status").column("unit").to_pylist() == ["u1"]
+    assert read_dataset(run, "status").column("unit").to_pylist() == ["u1"]
 
 
 class CopyingStage(Stage):
@@ -156,14 +157,14 @@ class CopyingStage(Stage):
 
 def test_a_worker_reads_its_inputs_in_place_and_commits_by_upload(url, cache, monkeypatch):
     run = RunFolder.prepare(url)
-    commit_tables(run, "upstream", "u1", outcome_rows("u1"))
+    run.commit_tables("upstream", "u1", outcome_rows("u1"))
     monkeypatch.setenv("MVPD_CACHE_DIR", str(cache.parent / "worker-machine"))
     worker = RunFolder(url)  # what a Ray task is handed: the URL
     job = Job(name="fixture", seed=0, scenes=SceneSources(procedural=ProceduralSource(count=1)),
               embodiments=[Embodiment(name="a", placements=[1.0])])
-    assert not execute_unit(CopyingStage(job), url, Unit("copy"), attempt=1).failed
+    assert not execute_unit(CopyingStage(job), worker, Unit("copy"), attempt=1).failed
     assert local_outputs(worker.root) == []  # neither the upstream part nor its own output stayed local
-    assert read_dataset(run.root, "status").column("unit").to_pylist() == ["u1", "u1"]
+    assert read_dataset(run, "status").column("unit").to_pylist() == ["u1", "u1"]
     assert sorted(run.marker("fixture", "copy").keys) == ["status/part-copy.parquet"]
 
 

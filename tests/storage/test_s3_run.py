@@ -13,10 +13,11 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli.main import app
-from pipeline.runtime import object_store
+from pipeline.store import remote as object_store
+from pipeline.store.names import ATTEMPTS
 from pipeline.runtime.executor import plan_stage
-from pipeline.runtime.markers import parse_marker
-from pipeline.runtime.run_folder import RunFolder
+from pipeline.store.markers import parse_marker
+from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.verify import verify_run
 from pipeline.stages import make_stage
 from tests.demo_run import DEMO_SHAPED_JOB, DEMO_VIDEO, demo_shaped_run
@@ -93,7 +94,7 @@ def test_demo_on_s3_equals_local_disk_byte_for_byte(s3, s3_run, tmp_path_factory
     assert_same_outputs(remote, local)
     # Outputs stay under attempt-unique keys: the bucket holds no object at a logical path.
     prefix = s3_run.removeprefix("s3://")
-    assert not s3.fs.exists(f"{prefix}/videos") and s3.fs.exists(f"{prefix}/{object_store.ATTEMPTS}")
+    assert not s3.fs.exists(f"{prefix}/videos") and s3.fs.exists(f"{prefix}/{ATTEMPTS}")
 
 
 def local_data(folder: Path) -> list[Path]:
@@ -123,7 +124,7 @@ def test_status_query_and_load_video_read_the_bucket(s3, s3_run, tmp_path_factor
     assert ours.rgb.shape == theirs.rgb.shape and ours.rgb.shape[0] > 0
     np.testing.assert_array_equal(ours.rgb[:], theirs.rgb[:])
     np.testing.assert_array_equal(ours.poses, theirs.poses)
-    assert str(ours.path).startswith(f"{s3_run}/{object_store.ATTEMPTS}/render/")
+    assert str(ours.path).startswith(f"{s3_run}/{ATTEMPTS}/render/")
     logs = invoke("logs", s3_run, f"ambient.{DEMO_VIDEO}", "--stage", "render")  # as uploaded by the worker
     assert logs.exit_code == 0 and f"== logs/render/ambient.{DEMO_VIDEO}.log ==" in logs.output and "committed" in logs.output
     assert local_data(machine) == [] and sum(p.stat().st_size for p in machine.rglob("*") if p.is_file()) < 64_000

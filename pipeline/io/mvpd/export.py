@@ -43,7 +43,8 @@ from pipeline.io.segments import DenseLabels, frame_segments, unique_with_invers
 from pipeline.io.mvpd.split_files import empty_videos_file, split_rows_of, zero_shot_file
 from pipeline.io.reader import video_locations
 from pipeline.io.zarr_video import Video, open_video
-from pipeline.runtime.run_folder import RunFolder, atomic_write_text
+from pipeline.store.names import atomic_write_text
+from pipeline.store.run_folder import RunFolder
 from pipeline.split.selection import has_split, split_rows
 
 log = logging.getLogger(__name__)
@@ -81,13 +82,13 @@ class ExportSummary:
     warnings: list[str] = field(default_factory=list)
 
 
-def export_release(run_root: Path, out_root: Path, split: str = "test", embodiment: str | None = None,
+def export_release(run: RunFolder, out_root: Path, split: str = "test", embodiment: str | None = None,
                    overwrite: bool = False, on_video: Callable[[str], None] | None = None,
                    on_start: Callable[[int], None] | None = None) -> ExportSummary:
     """Write every rendered video of one embodiment of a run as `<out_root>/<split>` in MVPd's layout.
 
     Args:
-        run_root: the run folder.
+        run: the run folder.
         out_root: the MVPd root; the split folder is created inside it.
         split: split name; every video goes into it until a split stage exists.
         embodiment: which embodiment to export; may be omitted when the run has only one (MVPd's video
@@ -96,17 +97,16 @@ def export_release(run_root: Path, out_root: Path, split: str = "test", embodime
         on_start, on_video: progress callbacks (number of videos; each finished video's name).
     """
     started = time.monotonic()
-    run = RunFolder.open(run_root)
     chosen = _choose_embodiment(run, embodiment)
     paths = SplitPaths(Path(out_root).expanduser().resolve(), split)
     if paths.folder.exists() and not overwrite:
         raise MvpdExportError(f"{paths.folder}: already exists; delete it or pass --overwrite")
     videos = _videos_of(run, chosen)
-    split_rows = split_rows_of(run.root, split) if has_split(run.root) else None
+    split_rows = split_rows_of(run, split) if has_split(run) else None
     if split_rows is not None:  # the split stage decides which videos are in the split and their flags
         videos = {name: video for name, video in videos.items() if name in split_rows}
         if not videos:
-            raise MvpdExportError(f"{run.root / 'splits'}: no video of embodiment {chosen!r} in split {split!r}")
+            raise MvpdExportError(f"{run.location}/splits: no video of embodiment {chosen!r} in split {split!r}")
     objects = _release_objects(run)
     lit = _lit_companions(run, chosen)
     warnings = _camera_warnings(run, chosen)
@@ -126,7 +126,7 @@ def export_release(run_root: Path, out_root: Path, split: str = "test", embodime
         if split_rows is not None:
             rows = [split_rows[v.name] for v in exported]
             write_json(staging / EMPTY_VIDEOS, empty_videos_file(rows))
-            write_json(staging / ZERO_SHOT, zero_shot_file(run.root, split, rows))
+            write_json(staging / ZERO_SHOT, zero_shot_file(run, split, rows))
             atomic_write_text(paths.root / f"{split}.txt", "".join(f"{s}\n" for s in sorted({r["scene_id"] for r in rows})))
         _swap_into_place(staging, paths.folder)
     except BaseException:
@@ -138,17 +138,17 @@ def export_release(run_root: Path, out_root: Path, split: str = "test", embodime
                          time.monotonic() - started, warnings)
 
 
-def export_release_splits(run_root: Path, out_root: Path, embodiment: str | None = None, overwrite: bool = False,
+def export_release_splits(run: RunFolder, out_root: Path, embodiment: str | None = None, overwrite: bool = False,
                           on_video: Callable[[str], None] | None = None,
                           on_start: Callable[[int], None] | None = None) -> list[ExportSummary]:
     """Every split of a run with a split stage (train, val, test), each as `export_release` writes one."""
     from pipeline.config import SPLIT_NAMES
 
-    names = sorted({r["split"] for r in split_rows(run_root)}, key=SPLIT_NAMES.index)
+    names = sorted({r["split"] for r in split_rows(run)}, key=SPLIT_NAMES.index)
     if not names:
-        raise MvpdExportError(f"{run_root}: the run has no split stage output; give --split NAME to export every "
+        raise MvpdExportError(f"{run.location}: the run has no split stage output; give --split NAME to export every "
                               "video as one split")
-    return [export_release(run_root, out_root, name, embodiment, overwrite, on_video, on_start) for name in names]
+    return [export_release(run, out_root, name, embodiment, overwrite, on_video, on_start) for name in names]
 
 
 def _choose_embodiment(run: RunFolder, requested: str | None) -> str:

@@ -47,7 +47,8 @@ from pipeline.io.tables import spec, to_table
 from pipeline.io.zarr_video import VideoWriter
 from pipeline.runtime.executor import ProgressCallback, StagePlan, StageReport, run_stage
 from pipeline.runtime.executors import ExecutorName
-from pipeline.runtime.run_folder import RunFolder, RunFolderError
+from pipeline.store.names import JOB_FILE
+from pipeline.store.run_folder import RunFolder, RunFolderError
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 from pipeline.runtime.status import UnitOutcome
 from pipeline.scenes.categories import STUFF_CATEGORIES, categories
@@ -338,18 +339,19 @@ def release_job(paths: SplitPaths, embodiment: str, videos: list[ReleaseVideo], 
 
 def _open_run(run_root: Path, job: Job) -> RunFolder:
     """Create the run, or reopen one that holds the same import (anything else is refused)."""
-    run = RunFolder(run_root)
-    if (run.root / "job.yaml").is_file():
-        existing = RunFolder.open(run.root).job()
+    try:
+        run = RunFolder.prepare(run_root)
+    except RunFolderError as error:
+        raise MvpdImportError(str(error)) from None
+    if (run.root / JOB_FILE).is_file():
+        existing = run.job()
         if existing.hash() != job.hash():
             raise MvpdImportError(
                 f"{run.root}: holds another job ({existing.name}, hash {existing.hash()}); import into a new folder"
             )
         return run
-    try:
-        return RunFolder.create(run.root, job)
-    except RunFolderError as error:
-        raise MvpdImportError(str(error)) from None
+    run.save_job(job)
+    return run
 
 
 # ----------------------------------------------------------------------------------- one video

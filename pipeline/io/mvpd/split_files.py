@@ -9,18 +9,21 @@ scene then upper-case hex colour. Import reads them back into the same `splits` 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pipeline.io.mvpd.layout import EMPTY_VIDEOS, ZERO_SHOT, parse_video_name, read_json
+
+if TYPE_CHECKING:
+    from pipeline.store.run_folder import RunFolder
 
 TRAIN = "train"
 
 
-def split_rows_of(run_root: Path, split: str) -> dict[str, dict[str, Any]]:
+def split_rows_of(run: RunFolder, split: str) -> dict[str, dict[str, Any]]:
     """video name -> its `splits` row, for one split of a run with a split stage."""
     from pipeline.split.selection import split_rows
 
-    return {r["video_name"]: r for r in split_rows(run_root) if r["split"] == split}
+    return {r["video_name"]: r for r in split_rows(run) if r["split"] == split}
 
 
 def empty_videos_file(rows: list[dict[str, Any]]) -> dict[str, list[str]]:
@@ -29,15 +32,13 @@ def empty_videos_file(rows: list[dict[str, Any]]) -> dict[str, list[str]]:
             "rejected": sorted(r["video_name"] for r in rows if r["empty"])}
 
 
-def zero_shot_file(run_root: Path, split: str, rows: list[dict[str, Any]]) -> dict[str, Any]:
+def zero_shot_file(run: RunFolder, split: str, rows: list[dict[str, Any]]) -> dict[str, Any]:
     """`zero_shot.json`: train: videos accepted / rejected by the zero-shot filter; val/test: unseen instances."""
     if split == TRAIN:
         return {"accepted": sorted(r["video_name"] for r in rows if not r["zero_shot_rejected"]),
                 "rejected": sorted(r["video_name"] for r in rows if r["zero_shot_rejected"])}
-    from pipeline.io.tables import read_dataset
-
     scenes = {r["scene_id"] for r in rows}
-    instances = [r for r in read_dataset(run_root, "zero_shot_instances").to_pylist() if r["unseen"] and r["scene_id"] in scenes]
+    instances = [r for r in run.read("zero_shot_instances").to_pylist() if r["unseen"] and r["scene_id"] in scenes]
     key = lambda r: (r["scene_id"], "%02X%02X%02X" % tuple(r["color"]))  # noqa: E731 - the authors' sort key
     return {"zero-shot": [{"scene_name": r["scene_id"], "color": [int(c) for c in r["color"]]} for r in sorted(instances, key=key)]}
 

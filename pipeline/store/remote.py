@@ -1,4 +1,5 @@
-"""Run folders on object storage (any fsspec URL: `s3://bucket/prefix`, `gs://...`, `memory://...`).
+"""Run folders on object storage (any fsspec URL: `s3://bucket/prefix`, `gs://...`, `memory://...`): the
+store's side of `pipeline.store.backends.StoreFiles`.
 
 A remote run lives on its store and is read there. Units stage on local disk as they do for a local run
 (in a local folder per URL, `cache_folder`, which holds only the job file, staging, logs before upload and
@@ -30,13 +31,12 @@ from typing import Any, NamedTuple
 import fsspec
 import fsspec.asyn
 from fsspec.implementations.memory import MemoryFileSystem
-from pipeline.runtime.failures import error_text
+
+from pipeline.errors import error_text
+from pipeline.store.names import REMOTE_FILE
 
 log = logging.getLogger(__name__)
 
-ATTEMPTS = "_attempts"
-# The remote URL a run's local folder stands for (the URL only: never a credential).
-REMOTE_FILE = ".remote-url"
 _URL = re.compile(r"^([a-z][a-z0-9+.-]+):/+(.*)$")
 # Variables a Ray worker needs to reach the same store as the driver: handed to its tasks as an argument
 # (held in memory by Ray, never in a runtime_env, which Ray writes into its logs), never written down.
@@ -104,17 +104,6 @@ def working_copy_url(root: Path) -> str | None:
         return (Path(root) / REMOTE_FILE).read_text(encoding="utf-8").strip() or None
     except (FileNotFoundError, NotADirectoryError):
         return None
-
-
-def store_of(root: str | os.PathLike) -> "RunStore | None":
-    """The store of a run given by its URL or by the local folder that stands for it (its `.remote-url`);
-    None for a local run.
-
-    Readers are handed a run's local folder; this is how they learn to read the store instead. Not
-    memoized: fsspec caches the clients, and tests change the environment they are made from.
-    """
-    url = remote_url(root) or working_copy_url(Path(root))
-    return RunStore(url) if url else None
 
 
 def attempt_id() -> str:

@@ -15,6 +15,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
+from pipeline.errors import error_text
+
 # An object store's client raises these besides OSError (s3fs translates only some botocore errors).
 _CLIENT_ERRORS = (("botocore.exceptions", "BotoCoreError"), ("botocore.exceptions", "ClientError"),
                   ("aiohttp", "ClientError"))
@@ -32,11 +34,6 @@ def storage_errors() -> tuple[type[BaseException], ...]:
         if loaded is not None and isinstance(getattr(loaded, name, None), type):
             found.append(getattr(loaded, name))
     return tuple(found)
-
-
-def error_text(error: BaseException, limit: int = 200) -> str:
-    """An error's text on one line (at most `limit` characters), or its type's name when it has none."""
-    return " ".join(str(error).split())[:limit] or type(error).__name__
 
 
 def is_no_space(error: BaseException) -> bool:

@@ -38,11 +38,11 @@ from typing import TYPE_CHECKING, Iterator
 
 import psutil
 
-from pipeline.runtime.failures import error_text
+from pipeline.errors import error_text
+from pipeline.store.names import STATE
 
 if TYPE_CHECKING:
-    from pipeline.runtime.object_store import RunStore
-    from pipeline.runtime.run_folder import RunFolder
+    from pipeline.store.remote import RunStore
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +51,7 @@ STALE_SECONDS = 120.0
 _LAPSED = "no heartbeat reached the run lock for {:.0f} s"
 # First wait before a failed heartbeat is tried again; doubled on each failure, at most HEARTBEAT_SECONDS.
 RETRY_SECONDS = 1.0
+LOCK_KEY = f"{STATE}/lock.json"
 
 
 def lease_seconds() -> float:
@@ -150,7 +151,7 @@ class RunLock(Lease):
 
     def __init__(self, run_root: Path):
         super().__init__()
-        self.path = Path(run_root) / "_state" / "lock.json"
+        self.path = Path(run_root) / LOCK_KEY
         self.where = str(Path(run_root))
         self._guard = self.path.with_name(".lock.guard")
 
@@ -236,9 +237,6 @@ def local_holder(path: Path) -> dict | None:
     return data if isinstance(data, dict) else None
 
 
-LOCK_KEY = "_state/lock.json"
-
-
 class RemoteRunLock(Lease):
     """Context manager holding `_state/lock.json` on the object store of a remote run (see the module doc).
 
@@ -273,7 +271,7 @@ class RemoteRunLock(Lease):
             found = self.store.read_object(LOCK_KEY)
             if found is None:
                 continue
-            holder = _parse(found.data)
+            holder = parse_holder(found.data)
             if self._is_mine(holder):  # our create succeeded, its answer was lost and the retry was refused
                 self._tag = found.tag
                 return
@@ -303,7 +301,7 @@ class RemoteRunLock(Lease):
         tag = self.store.replace_object(LOCK_KEY, self._record(), self._tag or "")
         if tag is None:
             found = self.store.read_object(LOCK_KEY)
-            if found is None or not self._is_mine(_parse(found.data)):
+            if found is None or not self._is_mine(parse_holder(found.data)):
                 self._tag = None
                 return False
             tag = found.tag  # our earlier write landed, its answer was lost and the retry was refused
@@ -311,42 +309,34 @@ class RemoteRunLock(Lease):
         return True
 
 
-def run_lock(run: "RunFolder") -> RunLock | RemoteRunLock:
-    """The lock of a run folder: on its object store for a remote run, else the local lock file."""
-    return RemoteRunLock(run.store) if run.store is not None else RunLock(run.root)
+def check_fence(holder: dict | None, owner: str, where: str) -> None:
+    """Raise LeaseLostError unless the run's lock (`holder`, as just read) still names `owner` with a heartbeat
+    younger than the lease.
 
-
-def check_fence(run: "RunFolder", owner: str) -> None:
-    """Raise LeaseLostError unless the run's lock still names `owner` with a heartbeat younger than the lease.
-
-    Called before a commit changes anything and before its marker (in Ray workers too, which see only the
+    Checked before a commit changes anything and before its marker (in Ray workers too, which see only the
     lock, not the driver): one small read of the lock file, or one GET of the lock object.
     """
-    if run.store is not None:
-        found = run.store.read_object(LOCK_KEY)
-        holder = _parse(found.data) if found is not None else None
-    else:
-        holder = local_holder(run.root / "_state" / "lock.json")
     if holder is None or holder.get("owner") != owner:
         who = "nobody" if holder is None else f"pid {holder.get('pid')} on {holder.get('host')}"
-        raise LeaseLostError(lease_lost_message(run.location, f"the run lock is now held by {who}"))
+        raise LeaseLostError(lease_lost_message(where, f"the run lock is now held by {who}"))
     age = time.time() - float(holder.get("heartbeat", 0))
     if age > lease_seconds():
-        raise LeaseLostError(lease_lost_message(run.location, f"the run lock's last heartbeat is {age:.0f} s old"))
+        raise LeaseLostError(lease_lost_message(where, f"the run lock's last heartbeat is {age:.0f} s old"))
+
+
+def parse_holder(data: bytes) -> dict | None:
+    """The record of a lock object's bytes; None when unreadable."""
+    try:
+        holder = json.loads(data)
+    except ValueError:
+        return None
+    return holder if isinstance(holder, dict) else None
 
 
 def _record(started: float) -> dict:
     """What a lock says about its holder: host, pid, process start, run start and heartbeat (nothing secret)."""
     return {"host": socket.gethostname(), "pid": os.getpid(), "process_started": _process_started(os.getpid()),
             "started": started, "heartbeat": time.time()}
-
-
-def _parse(data: bytes) -> dict | None:
-    try:
-        holder = json.loads(data)
-    except ValueError:
-        return None
-    return holder if isinstance(holder, dict) else None
 
 
 def _held_message(run: object, path: object, holder: dict | None) -> str:

@@ -33,9 +33,9 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from pipeline.runtime.failures import error_text
-from pipeline.runtime.markers import RUN_PATH, STATE, ColumnarManifest, Marker, marker_problem, parse_marker
-from pipeline.runtime.object_store import store_of
+from pipeline.errors import error_text
+from pipeline.store.markers import ColumnarManifest, Marker, marker_problem, parse_marker
+from pipeline.store.names import RUN_PATH, STATE
 
 log = logging.getLogger(__name__)
 
@@ -204,22 +204,6 @@ def write_index(folder: MarkerFolder) -> int:
     if stale:  # a missing index counts every marker as stale; an empty folder needs none
         folder.write_index(_encode(rows))
     return sum(marker is not None for _, marker in rows.values())
-
-
-def marker_folder(root: Path | str, stage: str) -> MarkerFolder:
-    """The marker folder of a stage of the run `root` stands for: on local disk, or on its object store."""
-    store = store_of(root)
-    if store is not None:
-        return FsspecMarkerFolder(store.fs, store.key(f"{STATE}/{stage}"))
-    return LocalMarkerFolder(root, stage)
-
-
-def index_stage(root: Path | str, stage: str) -> None:
-    """The driver's write of a stage's index after a stage run; a failure costs only speed (logged)."""
-    try:
-        write_index(marker_folder(root, stage))
-    except OSError as error:
-        log.warning("marker index of stage %s not written (%s); readers read the markers instead", stage, error)
 
 
 def _current_rows(folder: MarkerFolder) -> tuple[dict[str, tuple[str, Marker | None]], int]:

@@ -23,9 +23,9 @@ from typing import Callable
 
 import psutil
 
-from pipeline.runtime.markers import STATE
-from pipeline.runtime.object_store import ATTEMPTS, RunStore
-from pipeline.runtime.run_folder import STAGING, RunFolder
+from pipeline.store.names import ATTEMPTS, STAGING, STATE
+from pipeline.store.remote import RunStore
+from pipeline.store.run_folder import RunFolder
 
 log = logging.getLogger(__name__)
 

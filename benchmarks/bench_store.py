@@ -1,0 +1,187 @@
+"""The run folder as one object (issue 22): the code before and after it, side by side in one run.
+
+    git worktree add /tmp/before 945c5ba          # the last commit before pipeline/store/
+    .venv/bin/python benchmarks/bench_store.py --before /tmp/before [--repeats 5]
+
+Both trees run with this venv (each first on PYTHONPATH), so only the code differs:
+  walk      one `mvpd submit` of a small job (1 generated house, 2 videos; units in-process so the units'
+            own trip is counted too), traced with sys.setprofile: every call of a function of the package
+            that is handed the run (a RunFolder, a RunStore, a store backend, or the run's path or URL as a
+            str or Path) is a step; its room is the module the function lives in. Counted: steps, rooms
+            entered (a step into another module than the step before), returns (entering a module the
+            walk had already left), and resolutions (the run's location turned into a store again:
+            `store_of`, `run_root`, `RunFolder.__init__`).
+  bytes     the demo job submitted by each tree into its own folder: every output file compared (markers,
+            logs and the status table hold times and code versions; videos parts their render times,
+            compared without that column)
+  speed     `mvpd status`, `mvpd query` (one count) and `mvpd submit` of the same job (nothing to do) on
+            the demo run, whole commands, before and after alternating; median and spread of --repeats
+
+Writes benchmarks/results/store.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "benchmarks" / "results" / "store.json"
+PYTHON = sys.executable
+SMALL_JOB = """name: walk
+seed: 0
+scenes:
+  procedural: {count: 1, seed: 0, detail: 0.1}
+embodiments:
+  - name: ambient
+    sensor: {width: 64, height: 48, hfov: 69.0}
+    placements: [1.0]
+    body: {radius: 0.15, height: 1.2}
+plan: {trajectories_per_scene: 2, min_frames: 8, max_frames: 12}
+"""
+# Runs in the tree under test: submit the job with a profiler that follows the run through the package.
+TRACER = r"""
+import json, os, sys
+from pathlib import Path
+job, run_dir = sys.argv[1], sys.argv[2]
+root = str(Path(run_dir).resolve())
+package = str(Path(__import__("pipeline").__file__).resolve().parent)
+RUN_TYPES = ("RunFolder", "RunStore", "LocalFiles", "StoreFiles", "LocalMarkerFolder", "FsspecMarkerFolder")
+RESOLVERS = {"store_of", "run_root", "as_run"}
+steps, resolutions = [], 0
+
+def carries_run(value):
+    if type(value).__name__ in RUN_TYPES:
+        return True
+    return isinstance(value, (str, os.PathLike)) and str(value) == root
+
+def profile(frame, event, arg):
+    global resolutions
+    if event != "call":
+        return
+    code = frame.f_code
+    if not code.co_filename.startswith(package):
+        return
+    arguments = code.co_varnames[:code.co_argcount + code.co_kwonlyargcount]
+    values = [frame.f_locals.get(name) for name in arguments]
+    if code.co_name in RESOLVERS or (code.co_name == "__init__" and type(values[0]).__name__ == "RunFolder"):
+        resolutions += 1
+    if any(carries_run(v) for v in values):
+        module = Path(code.co_filename).relative_to(package).with_suffix("").as_posix()
+        steps.append(module)
+
+from pipeline.cli.main import app
+sys.setprofile(profile)
+try:
+    app(["submit", job, "--run-dir", run_dir, "--executor", "local"], standalone_mode=False)
+finally:
+    sys.setprofile(None)
+entered, left, returns = [], set(), 0
+for module in steps:
+    if entered and entered[-1] == module:
+        continue
+    if entered:
+        left.add(entered[-1])
+    returns += module in left
+    entered.append(module)
+print(json.dumps({"steps": len(steps), "rooms": len(set(steps)), "entered": len(entered), "returns": returns,
+                  "resolutions": resolutions, "walk": entered[:60]}))
+"""
+
+
+def in_tree(tree: Path) -> dict[str, str]:
+    return {**os.environ, "PYTHONPATH": str(tree), "RAY_ADDRESS": ""}
+
+
+def walk(tree: Path, folder: Path) -> dict:
+    job = folder / "walk.yaml"
+    job.write_text(SMALL_JOB)
+    done = subprocess.run([PYTHON, "-c", TRACER, str(job), str(folder / "run")], env=in_tree(tree), check=True,
+                          capture_output=True, text=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def mvpd(tree: Path, *args: str) -> float:
+    """Seconds one whole `mvpd` command takes with the code of `tree`."""
+    started = time.perf_counter()
+    subprocess.run([PYTHON, "-c", "from pipeline.cli.main import app; app()", *args], env=in_tree(tree), check=True,
+                   capture_output=True)
+    return time.perf_counter() - started
+
+
+def digests(run: Path) -> dict[str, str]:
+    """Path -> SHA-256 of every output file (videos parts: of their rows without the render time)."""
+    import pyarrow.parquet as pq
+
+    found = {}
+    for path in sorted(p for p in run.rglob("*") if p.is_file()):
+        relative = path.relative_to(run).as_posix()
+        if relative.split("/")[0] in ("_state", "logs", "status", "previews"):
+            continue
+        if relative.startswith("videos/part-"):
+            table = pq.read_table(path).drop_columns(["render_seconds"])
+            found[relative] = hashlib.sha256(str(table.to_pylist()).encode()).hexdigest()
+        else:
+            found[relative] = hashlib.sha256(path.read_bytes()).hexdigest()
+    return found
+
+
+def spread(values: list[float]) -> dict:
+    return {"median_s": round(statistics.median(values), 3), "min_s": round(min(values), 3),
+            "max_s": round(max(values), 3), "runs": [round(v, 3) for v in values]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--before", type=Path, required=True, help="a checkout of the code before pipeline/store/")
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args()
+    trees = {"before": args.before.resolve(), "after": REPO}
+    result: dict = {"before_commit": subprocess.run(["git", "-C", str(trees["before"]), "rev-parse", "HEAD"],
+                                                     capture_output=True, text=True).stdout.strip()}
+    with tempfile.TemporaryDirectory() as scratch:
+        folder = Path(scratch)
+        result["walk"] = {}
+        for name, tree in trees.items():
+            (folder / name).mkdir()
+            result["walk"][name] = walk(tree, folder / name)
+            print(name, "walk:", {k: v for k, v in result["walk"][name].items() if k != "walk"}, flush=True)
+        demo = REPO / "jobs" / "demo.yaml"
+        runs = {}
+        for name, tree in trees.items():
+            runs[name] = folder / f"demo-{name}"
+            seconds = mvpd(tree, "submit", str(demo), "--run-dir", str(runs[name]))
+            print(f"{name}: demo job in {seconds:.0f} s", flush=True)
+        before, after = digests(runs["before"]), digests(runs["after"])
+        differing = sorted(p for p in before.keys() | after.keys() if before.get(p) != after.get(p))
+        result["bytes"] = {"files_compared": len(before), "differing": differing, "identical": not differing}
+        print("bytes:", "identical" if not differing else f"{len(differing)} files differ, e.g. {differing[:3]}")
+        commands = {"status": ["status", str(runs["before"])],
+                    "query": ["query", str(runs["before"]), "select count(*) from videos"],
+                    "submit_noop": ["submit", str(demo), "--run-dir", str(runs["before"])]}
+        times: dict[str, dict[str, list[float]]] = {c: {"before": [], "after": []} for c in commands}
+        for _ in range(args.repeats):
+            for command, arguments in commands.items():
+                for name, tree in trees.items():
+                    times[command][name].append(mvpd(tree, *arguments))
+        result["speed"] = {}
+        for command, by_tree in times.items():
+            ratio = statistics.median(by_tree["after"]) / statistics.median(by_tree["before"])
+            result["speed"][command] = {"before": spread(by_tree["before"]), "after": spread(by_tree["after"]),
+                                        "after_over_before": round(ratio, 3)}
+            print(f"{command}: before {statistics.median(by_tree['before']):.2f} s, after "
+                  f"{statistics.median(by_tree['after']):.2f} s (after/before {ratio:.2f})", flush=True)
+    RESULTS.write_text(json.dumps(result, indent=1) + "\n")
+    print(f"wrote {RESULTS}")
+
+
+if __name__ == "__main__":
+    main()
