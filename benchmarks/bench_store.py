@@ -3,17 +3,21 @@
     git worktree add /tmp/before 945c5ba          # the last commit before pipeline/store/
     .venv/bin/python benchmarks/bench_store.py --before /tmp/before [--repeats 5]
 
-Both trees run with this venv (each first on PYTHONPATH), so only the code differs:
+Both trees run with this venv (each first on PYTHONPATH; `python -P`, so the working folder never wins),
+so only the code differs:
   walk      one `mvpd submit` of a small job (1 generated house, 2 videos; units in-process so the units'
             own trip is counted too), traced with sys.setprofile: every call of a function of the package
-            that is handed the run (a RunFolder, a RunStore, a store backend, or the run's path or URL as a
-            str or Path) is a step; its room is the module the function lives in. Counted: steps, rooms
-            entered (a step into another module than the step before), returns (entering a module the
-            walk had already left), and resolutions (the run's location turned into a store again:
-            `store_of`, `run_root`, `RunFolder.__init__`).
+            that is handed the run (a RunFolder, a RunStore, a store backend or marker folder, or the run's
+            path or URL as a str or Path) is a step; its room is the module the function lives in.
+            Counted: steps, rooms (modules) visited, rooms entered (a step into another module than the
+            step before), returns (a step into a module that is already further down the same call
+            chain, below another module: a circle walked at run time, such as markers -> marker_index ->
+            markers), and resolutions (the run's location turned into a store or folder again:
+            `store_of`, `run_root`, `as_run`, `RunFolder.__init__`).
   bytes     the demo job submitted by each tree into its own folder: every output file compared (markers,
             logs and the status table hold times and code versions; videos parts their render times,
             compared without that column)
+  circles   the import circles of each tree's package (tests/runtime/test_layers.py's AST check)
   speed     `mvpd status`, `mvpd query` (one count) and `mvpd submit` of the same job (nothing to do) on
             the demo run, whole commands, before and after alternating; median and spread of --repeats
 
@@ -56,15 +60,31 @@ root = str(Path(run_dir).resolve())
 package = str(Path(__import__("pipeline").__file__).resolve().parent)
 RUN_TYPES = ("RunFolder", "RunStore", "LocalFiles", "StoreFiles", "LocalMarkerFolder", "FsspecMarkerFolder")
 RESOLVERS = {"store_of", "run_root", "as_run"}
-steps, resolutions = [], 0
+steps, resolutions, returns = [], 0, 0
+circles = __import__('collections').Counter()
 
 def carries_run(value):
     if type(value).__name__ in RUN_TYPES:
         return True
     return isinstance(value, (str, os.PathLike)) and str(value) == root
 
+def module_of(code):
+    return Path(code.co_filename).relative_to(package).with_suffix("").as_posix()
+
+def chain(frame):
+    # The package modules on the stack below `frame`, consecutive repeats collapsed.
+    found = []
+    frame = frame.f_back
+    while frame is not None:
+        if frame.f_code.co_filename.startswith(package):
+            module = module_of(frame.f_code)
+            if not found or found[-1] != module:
+                found.append(module)
+        frame = frame.f_back
+    return found
+
 def profile(frame, event, arg):
-    global resolutions
+    global resolutions, returns
     if event != "call":
         return
     code = frame.f_code
@@ -75,7 +95,13 @@ def profile(frame, event, arg):
     if code.co_name in RESOLVERS or (code.co_name == "__init__" and type(values[0]).__name__ == "RunFolder"):
         resolutions += 1
     if any(carries_run(v) for v in values):
-        module = Path(code.co_filename).relative_to(package).with_suffix("").as_posix()
+        module = module_of(code)
+        below = chain(frame)
+        # A return: the call comes back into a module that is further down this very call chain, having
+        # gone through another one (markers -> marker_index -> markers): a circle walked at run time.
+        if module in below[1:] or (below and below[0] != module and module in below):
+            returns += 1
+            circles[" -> ".join([*reversed(below[:below.index(module) + 1]), module])] += 1
         steps.append(module)
 
 from pipeline.cli.main import app
@@ -84,16 +110,9 @@ try:
     app(["submit", job, "--run-dir", run_dir, "--executor", "local"], standalone_mode=False)
 finally:
     sys.setprofile(None)
-entered, left, returns = [], set(), 0
-for module in steps:
-    if entered and entered[-1] == module:
-        continue
-    if entered:
-        left.add(entered[-1])
-    returns += module in left
-    entered.append(module)
+entered = [module for index, module in enumerate(steps) if index == 0 or steps[index - 1] != module]
 print(json.dumps({"steps": len(steps), "rooms": len(set(steps)), "entered": len(entered), "returns": returns,
-                  "resolutions": resolutions, "walk": entered[:60]}))
+                  "resolutions": resolutions, "circles": dict(circles.most_common()), "walk": entered[:60]}))
 """
 
 
@@ -104,16 +123,17 @@ def in_tree(tree: Path) -> dict[str, str]:
 def walk(tree: Path, folder: Path) -> dict:
     job = folder / "walk.yaml"
     job.write_text(SMALL_JOB)
-    done = subprocess.run([PYTHON, "-c", TRACER, str(job), str(folder / "run")], env=in_tree(tree), check=True,
-                          capture_output=True, text=True)
+    done = subprocess.run([PYTHON, "-P", "-c", TRACER, str(job), str(folder / "run")], env=in_tree(tree), cwd=tree,
+                          check=True, capture_output=True, text=True)
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def mvpd(tree: Path, *args: str) -> float:
     """Seconds one whole `mvpd` command takes with the code of `tree`."""
     started = time.perf_counter()
-    subprocess.run([PYTHON, "-c", "from pipeline.cli.main import app; app()", *args], env=in_tree(tree), check=True,
-                   capture_output=True)
+    # In the tree's folder: Ray puts the driver's working folder on its workers' path.
+    subprocess.run([PYTHON, "-P", "-c", "from pipeline.cli.main import app; app()", *args], env=in_tree(tree), cwd=tree,
+                   check=True, capture_output=True)
     return time.perf_counter() - started
 
 
@@ -145,15 +165,21 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
     trees = {"before": args.before.resolve(), "after": REPO}
-    result: dict = {"before_commit": subprocess.run(["git", "-C", str(trees["before"]), "rev-parse", "HEAD"],
-                                                     capture_output=True, text=True).stdout.strip()}
+    sys.path.insert(0, str(REPO))
+    from tests.runtime.test_layers import circles, module_graph
+
+    result: dict = {"import_circles": {name: circles(module_graph(tree / "pipeline")) for name, tree in trees.items()}}
+    print("import circles:", result["import_circles"], flush=True)
+    result["before_commit"] = subprocess.run(["git", "-C", str(trees["before"]), "rev-parse", "HEAD"],
+                                             capture_output=True, text=True).stdout.strip()
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
         result["walk"] = {}
         for name, tree in trees.items():
             (folder / name).mkdir()
             result["walk"][name] = walk(tree, folder / name)
-            print(name, "walk:", {k: v for k, v in result["walk"][name].items() if k != "walk"}, flush=True)
+            print(name, "walk:", {k: v for k, v in result["walk"][name].items() if k not in ("walk", "circles")},
+                  result["walk"][name]["circles"], flush=True)
         demo = REPO / "jobs" / "demo.yaml"
         runs = {}
         for name, tree in trees.items():

@@ -2,30 +2,26 @@
 
 Readers never list a dataset folder: `dataset_parts` returns the part files that markers name and that
 are there with the size their marker recorded (the commit protocol in schemas/README.md). On object
-storage the parts are the keys the markers name, read in place.
+storage the parts are the keys the markers name, read in place. The run folder finds them
+(`RunFolder.trusted_parts`, `RunFolder.read`); these are the names every reader calls.
 """
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pyarrow as pa
 
-from pipeline.errors import error_text
 from pipeline.store.markers import Damage, Marker
-from pipeline.store.tables import spec
 
 if TYPE_CHECKING:
     from pipeline.store.run_folder import RunFolder
 
-log = logging.getLogger(__name__)
-
 
 @dataclass(frozen=True)
-class _Part:
+class TrustedPart:
     """A trusted part: where it is read from (a local path, or a URL on the run's store), who committed it."""
 
     path: Path | str
@@ -36,45 +32,22 @@ class _Part:
 
 # A stage's markers and its damaged units, as one pass over them found them (shared by the datasets a
 # stage wrote: its ~40 files per unit are checked once, not once per dataset).
-_Checked = dict[str, tuple[dict[str, Marker], dict[str, list[Damage]]]]
-
-
-def _trusted_parts(run: RunFolder, dataset: str, checked: _Checked | None = None) -> tuple[list[_Part], list[Damage]]:
-    """Part files of `dataset` named by markers of undamaged units, and the damage that left the others out."""
-    checked = {} if checked is None else checked
-    parts, damaged = [], []
-    prefix = f"{dataset}/"
-    for stage in run.stages_writing(dataset):
-        if stage not in checked:
-            markers = run.markers(stage)
-            # Any bad file of the unit withholds all its rows: a `videos` row whose Zarr lost a shard would
-            # otherwise send readers to zeros.
-            checked[stage] = markers, run.damage(markers)
-        markers, problems = checked[stage]
-        for unit, marker in markers.items():
-            names = sorted(o for o in marker.outputs if o.startswith(prefix) and o.endswith(".parquet"))
-            if not names:
-                continue
-            if unit in problems:
-                damaged.extend(problems[unit])
-                continue
-            parts.extend(_Part(run.part_location(marker, name), name, stage, unit) for name in names)
-    return sorted(parts, key=lambda p: p.relative), damaged
+CheckedStages = dict[str, tuple[dict[str, Marker], dict[str, list[Damage]]]]
 
 
 def trusted_parts(run: RunFolder, dataset: str) -> tuple[list[Path | str], list[Damage]]:
     """`dataset_parts` and `damaged_parts` from one pass over the markers (a reader that reports damage
     and then reads checks each committed file once, not twice)."""
-    return _paths(_trusted_parts(run, dataset))
+    return _paths(run.trusted_parts(dataset))
 
 
 def trusted_parts_of(run: RunFolder, datasets: list[str]) -> dict[str, tuple[list[Path | str], list[Damage]]]:
     """`trusted_parts` of several datasets, each stage's files checked once (a reader of many tables)."""
-    checked: _Checked = {}
-    return {dataset: _paths(_trusted_parts(run, dataset, checked)) for dataset in datasets}
+    checked: CheckedStages = {}
+    return {dataset: _paths(run.trusted_parts(dataset, checked)) for dataset in datasets}
 
 
-def _paths(found: tuple[list[_Part], list[Damage]]) -> tuple[list[Path | str], list[Damage]]:
+def _paths(found: tuple[list[TrustedPart], list[Damage]]) -> tuple[list[Path | str], list[Damage]]:
     return [p.path for p in found[0]], found[1]
 
 
@@ -86,12 +59,12 @@ def dataset_parts(run: RunFolder, dataset: str) -> list[Path | str]:
     that died, a retired unit) is not listed, nor a part of a unit with any file missing, resized or
     found corrupt (see `damaged_parts`).
     """
-    return [p.path for p in _trusted_parts(run, dataset)[0]]
+    return [p.path for p in run.trusted_parts(dataset)[0]]
 
 
 def damaged_parts(run: RunFolder, dataset: str) -> list[Damage]:
     """Why parts of `dataset` are left out: the damaged files of the units that wrote them (for reporting)."""
-    return _trusted_parts(run, dataset)[1]
+    return run.trusted_parts(dataset)[1]
 
 
 def damage_line(dataset: str, damaged: list[Damage]) -> str:
@@ -104,25 +77,5 @@ def damage_line(dataset: str, damaged: list[Damage]) -> str:
 
 
 def read_dataset(run: RunFolder, dataset: str, warn: bool = True) -> pa.Table:
-    """All trusted parts of a dataset as one table with the registered schema (empty when none).
-
-    Damaged parts are left out with one warning line (unless `warn` is False, for a caller that reports
-    damage itself); a part that cannot be read is skipped too and recorded as damage of the unit that
-    wrote it, so `mvpd status` shows that unit as damaged and `mvpd rerun` writes it again.
-    """
-    schema = spec(dataset).schema
-    tables = []
-    parts, damaged = _trusted_parts(run, dataset)
-    if damaged and warn:
-        log.warning("%s", damage_line(dataset, damaged))
-    for part in parts:
-        try:
-            tables.append(run.read_part(part.path, schema))
-        except (pa.ArrowException, OSError) as error:
-            log.warning("%s: unreadable Parquet part (%s); skipped, rerun stage %s to rewrite it",
-                        part.path, error_text(error), part.stage)
-            marker = run.marker(part.stage, part.unit)
-            if marker is not None:
-                run.record_damage(part.stage, [(marker, [Damage(part.stage, part.unit, part.relative,
-                                                                "is unreadable Parquet")])])
-    return pa.concat_tables(tables) if tables else schema.empty_table()
+    """All trusted parts of a dataset as one table with the registered schema (see `RunFolder.read`)."""
+    return run.read(dataset, warn)

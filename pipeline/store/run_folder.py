@@ -13,6 +13,7 @@ units' staging, logs before upload and the lock's guard. It holds no output.
 
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 import socket
@@ -27,15 +28,18 @@ import yaml
 
 from pipeline.config import ConfigError, Job, job_from_resolved
 from pipeline.store.backends import LocalFiles, RunFiles, RunFolderError, StoreFiles
-from pipeline.store.datasets import read_dataset
+from pipeline.errors import error_text
+from pipeline.store.datasets import CheckedStages, TrustedPart, damage_line
 from pipeline.store.lock import Lease, check_fence
 from pipeline.store.marker_index import load_markers, write_index
 from pipeline.store.markers import Damage, Marker, code_version, describe_files
 from pipeline.store.names import JOB_FILE, REMOTE_FILE, STAGING, atomic_write_text
 from pipeline.store.remote import RunStore, cache_folder, local_path, remote_url, working_copy_url
-from pipeline.store.tables import write_part
+from pipeline.store.tables import spec, write_part
 
 __all__ = ["RunAddress", "RunFolder", "RunFolderError", "as_run"]
+
+log = logging.getLogger(__name__)
 
 
 class RunFolder:
@@ -204,9 +208,54 @@ class RunFolder:
         """Where a Parquet part committed by `marker` is read (a Path on disk, a URL on a store)."""
         return self.files.path_of(marker, relative)
 
-    def read(self, dataset: str) -> pa.Table:
-        """All committed rows of a Parquet dataset of this run (marker-trusted parts only)."""
-        return read_dataset(self, dataset)
+    def trusted_parts(self, dataset: str,
+                      checked: CheckedStages | None = None) -> tuple[list[TrustedPart], list[Damage]]:
+        """Part files of `dataset` named by markers of undamaged units, sorted, and the damage that left the
+        others out (`checked` shares each stage's markers and damage between datasets)."""
+        checked = {} if checked is None else checked
+        parts, damaged = [], []
+        prefix = f"{dataset}/"
+        for stage in self.stages_writing(dataset):
+            if stage not in checked:
+                markers = self.markers(stage)
+                # Any bad file of the unit withholds all its rows: a `videos` row whose Zarr lost a shard would
+                # otherwise send readers to zeros.
+                checked[stage] = markers, self.damage(markers)
+            markers, problems = checked[stage]
+            for unit, marker in markers.items():
+                names = sorted(o for o in marker.outputs if o.startswith(prefix) and o.endswith(".parquet"))
+                if not names:
+                    continue
+                if unit in problems:
+                    damaged.extend(problems[unit])
+                    continue
+                parts.extend(TrustedPart(self.part_location(marker, name), name, stage, unit) for name in names)
+        return sorted(parts, key=lambda p: p.relative), damaged
+
+    def read(self, dataset: str, warn: bool = True) -> pa.Table:
+        """All committed rows of a Parquet dataset (marker-trusted parts only) as one table with the registered
+        schema; empty when there are none.
+
+        Damaged parts are left out with one warning line (unless `warn` is False, for a caller that reports
+        damage itself); a part that cannot be read is skipped too and recorded as damage of the unit that
+        wrote it, so `mvpd status` shows that unit as damaged and `mvpd rerun` writes it again.
+        """
+        schema = spec(dataset).schema
+        tables = []
+        parts, damaged = self.trusted_parts(dataset)
+        if damaged and warn:
+            log.warning("%s", damage_line(dataset, damaged))
+        for part in parts:
+            try:
+                tables.append(self.read_part(part.path, schema))
+            except (pa.ArrowException, OSError) as error:
+                log.warning("%s: unreadable Parquet part (%s); skipped, rerun stage %s to rewrite it",
+                            part.path, error_text(error), part.stage)
+                marker = self.marker(part.stage, part.unit)
+                if marker is not None:
+                    unreadable = Damage(part.stage, part.unit, part.relative, "is unreadable Parquet")
+                    self.record_damage(part.stage, [(marker, [unreadable])])
+        return pa.concat_tables(tables) if tables else schema.empty_table()
 
     def read_part(self, location: Path | str, schema: pa.Schema, **options: Any) -> pa.Table:
         """One trusted part (a location from `part_location`), read in place."""

@@ -40,11 +40,11 @@ PACKAGE = RUNTIME.parent
 STORE = PACKAGE / "store"
 
 
-def module_graph() -> dict[str, set[str]]:
+def module_graph(package: Path = PACKAGE) -> dict[str, set[str]]:
     """Module -> the package modules it imports (lazy imports included; `if TYPE_CHECKING:` blocks and the
     root package, which every module's import runs first anyway, left out)."""
-    paths = {".".join(p.relative_to(PACKAGE.parent).with_suffix("").parts).removesuffix(".__init__"): p
-             for p in PACKAGE.rglob("*.py")}
+    paths = {".".join(p.relative_to(package.parent).with_suffix("").parts).removesuffix(".__init__"): p
+             for p in package.rglob("*.py")}
     graph = {}
     for name, path in paths.items():
         tree = ast.parse(path.read_text(encoding="utf-8"))
