@@ -6,6 +6,7 @@ import importlib.util
 import re
 import sys
 from importlib.abc import Loader
+from importlib.machinery import ModuleSpec
 from types import ModuleType
 
 # The apt package of each system library our native modules load (deploy/setup.sh's SYSTEM_PACKAGES), by
@@ -58,6 +59,9 @@ class _RememberingLoader(Loader):
 
     def __init__(self, loader: Loader) -> None:
         self.loader = loader
+
+    def create_module(self, spec: ModuleSpec) -> ModuleType | None:
+        return self.loader.create_module(spec)
 
     def exec_module(self, module: ModuleType) -> None:
         module.__spec__.loader = module.__loader__ = self.loader  # the loaded module sees its own loader
