@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 
 import pytest
 
@@ -28,8 +29,6 @@ MISSING_LIBUSB = "libusb-1.0.so.0: cannot open shared object file: No such file 
 @pytest.fixture
 def unloadable_module(tmp_path, monkeypatch):
     """The name of a module on sys.path whose import fails half-way, as open3d's does without libusb."""
-    import sys
-
     name = "unloadable_native_module"
     (tmp_path / f"{name}.py").write_text(f"VERSION = '1.0'  # set before the failure: the module is half-run\n"
                                          f"raise ImportError({MISSING_LIBUSB!r})\n")
