@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 
 import pytest
 
@@ -19,3 +20,18 @@ def ray_session():
     ensure_ray(num_cpus=2)
     yield ray
     ray.shutdown()
+
+
+# What the dynamic loader says when a native module's system library is absent (open3d without libusb).
+MISSING_LIBUSB = "libusb-1.0.so.0: cannot open shared object file: No such file or directory"
+
+
+@pytest.fixture
+def unloadable_module(tmp_path, monkeypatch):
+    """The name of a module on sys.path whose import fails half-way, as open3d's does without libusb."""
+    name = "unloadable_native_module"
+    (tmp_path / f"{name}.py").write_text(f"VERSION = '1.0'  # set before the failure: the module is half-run\n"
+                                         f"raise ImportError({MISSING_LIBUSB!r})\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    yield name
+    sys.modules.pop(name, None)

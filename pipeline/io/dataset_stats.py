@@ -192,11 +192,18 @@ def draw_cluster_histogram(axis: "object", clusters: list[dict[str, object]]) ->
     """Training videos per zero-shot cluster (least seen first), unseen clusters hatched red, labelled by examples."""
     labels = [", ".join(list(c["example_names"])[:2]) for c in clusters]  # type: ignore[call-overload]
     counts = [int(c["training_videos"]) for c in clusters]  # type: ignore[call-overload]
-    bars = axis.bar(range(len(clusters)), counts, color=["#d62728" if c["unseen"] else "#1f77b4" for c in clusters],  # type: ignore[attr-defined]
-                    edgecolor="black")
-    for bar, cluster in zip(bars, clusters):
+    colours = ["#d62728" if c["unseen"] else "#1f77b4" for c in clusters]
+    # A bar of height 0 is invisible, hatching and all: a cluster no training video shows is drawn as a
+    # dashed, unfilled stub of 4 % of the tallest bar, so it is seen; every bar says its count, so the stub
+    # still reads as 0 beside a shorter bar of 1.
+    stub = 0.04 * max(max(counts), 1)
+    bars = axis.bar(range(len(clusters)), [count or stub for count in counts], color=colours, edgecolor="black")  # type: ignore[attr-defined]
+    for bar, cluster, count, colour in zip(bars, clusters, counts, colours):
         if cluster["unseen"]:
             bar.set_hatch("//")
+        if count == 0:
+            bar.set(fill=False, edgecolor=colour, linestyle="--")
+    axis.bar_label(bars, [str(count) for count in counts], fontsize=8)  # type: ignore[attr-defined]
     axis.set_xticks(range(len(clusters)), labels, rotation=35, ha="right", fontsize=8)  # type: ignore[attr-defined]
     axis.set_ylabel("training videos")  # type: ignore[attr-defined]
     axis.yaxis.get_major_locator().set_params(integer=True)  # type: ignore[attr-defined]

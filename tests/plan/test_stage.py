@@ -12,12 +12,15 @@ from typer.testing import CliRunner
 from pipeline.cli.main import app
 from pipeline.config import Body, Embodiment, Illumination, Job, PlanConfig, ProceduralSource, SceneSources, Sensor
 from pipeline.io.tables import to_table
+from pipeline.lazy_import import lazy_module
+from pipeline.plan import navigable
 from pipeline.plan.navigable import NavigableArea
 from pipeline.plan.poses import pose_matrices
 from pipeline.plan.report import plan_reports
 from pipeline.plan.stage import PathPlanner
 from pipeline.plan.synthetic import FLOOR, room_shell, scene_from_boxes, two_rooms
 from pipeline.runtime.executor import run_unit_locally
+from pipeline.runtime.executors import run_units
 from pipeline.store.run_folder import RunFolder
 from pipeline.scenes.scene import Scene, SceneRef
 from pipeline.scenes.shard import scene_row
@@ -50,12 +53,18 @@ def make_job(seed: int = 0, embodiments: list[Embodiment] | None = None) -> Job:
                ])
 
 
-def planned_run(root, job: Job, scene_ids: tuple[str, ...] = (ROOMS,)) -> tuple[RunFolder, dict]:
-    """A run whose scenes table lists the box scenes, with every plan unit run; returns markers by unit."""
+def sharded_run(root, job: Job, scene_ids: tuple[str, ...] = (ROOMS,)) -> RunFolder:
+    """A run whose scenes table lists the box scenes."""
     run = RunFolder.create(root, job)
     for scene_id in scene_ids:
         ref = SceneRef(scene_id, "procedural", "", load_procedural)
         run.commit_tables("shard", scene_id, {"scenes": to_table("scenes", [scene_row(SCENES[scene_id], ref)])})
+    return run
+
+
+def planned_run(root, job: Job, scene_ids: tuple[str, ...] = (ROOMS,)) -> tuple[RunFolder, dict]:
+    """A run whose scenes table lists the box scenes, with every plan unit run; returns markers by unit."""
+    run = sharded_run(root, job, scene_ids)
     stage = BoxPlanner(job)
     return run, {unit.id: run_unit_locally(stage, run, unit) for unit in stage.units(run)}
 
@@ -156,3 +165,16 @@ def test_settings_follow_the_body_but_not_the_light():
         update={"body": Body(radius=0.2)}), job.embodiments[1]]})
     assert PathPlanner(job).settings() != PathPlanner(bigger).settings()
     assert math.isclose(PathPlanner(job).settings()["plan"]["max_turn"], 0.5)
+
+
+def test_every_unit_says_the_same_line_when_open3d_cannot_load_its_system_library(tmp_path, monkeypatch,
+                                                                                  unloadable_module):
+    monkeypatch.setattr(navigable, "o3d", lazy_module(unloadable_module))  # open3d as it loads without libusb
+    job = make_job()
+    run, stage = sharded_run(tmp_path / "run", job), BoxPlanner(job)
+    units = stage.units(run)
+    outcomes = run_units(stage, run, units, {unit.id: 1 for unit in units}, "local", None, None)  # one process
+    assert [o.state for o in outcomes] == ["failed", "failed"]
+    assert outcomes[0].message == outcomes[1].message and outcomes[0].error_type == outcomes[1].error_type
+    assert "libusb-1.0.so.0: install the apt package libusb-1.0-0" in outcomes[0].message
+    assert "make setup" in outcomes[0].message
