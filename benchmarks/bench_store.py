@@ -10,7 +10,8 @@ so only the code differs:
             that is handed the run (a RunFolder, a RunStore, a store backend or marker folder, or the run's
             path or URL as a str or Path) is a step; its room is the module the function lives in.
             Counted: steps, rooms (modules) visited, rooms entered (a step into another module than the
-            step before), returns (a step into a module that is already further down the same call
+            step before), revisits (an entry into a module the walk had already been in, however it got
+            there), returns (a step into a module that is already further down the same call
             chain, below another module: a circle walked at run time, such as markers -> marker_index ->
             markers), and resolutions (the run's location turned into a store or folder again:
             `store_of`, `run_root`, `as_run`, `RunFolder.__init__`).
@@ -111,7 +112,9 @@ try:
 finally:
     sys.setprofile(None)
 entered = [module for index, module in enumerate(steps) if index == 0 or steps[index - 1] != module]
-print(json.dumps({"steps": len(steps), "rooms": len(set(steps)), "entered": len(entered), "returns": returns,
+revisits = sum(module in entered[:index] for index, module in enumerate(entered))
+print(json.dumps({"steps": len(steps), "rooms": len(set(steps)), "entered": len(entered), "revisits": revisits,
+                  "returns": returns,
                   "resolutions": resolutions, "circles": dict(circles.most_common()), "walk": entered[:60]}))
 """
 
