@@ -16,8 +16,8 @@ so only the code differs:
             markers), and resolutions (the run's location turned into a store or folder again:
             `store_of`, `run_root`, `as_run`, `RunFolder.__init__`).
   bytes     the demo job submitted by each tree into its own folder: every output file compared (markers,
-            logs and the status table hold times and code versions; videos parts their render times,
-            compared without that column)
+            logs and the status table hold times and code versions; `videos` and `frame_stats` parts
+            hold render times, compared without that column)
   circles   the import circles of each tree's package (tests/runtime/test_layers.py's AST check)
   speed     `mvpd status`, `mvpd query` (one count) and `mvpd submit` of the same job (nothing to do) on
             the demo run, whole commands, before and after alternating; median and spread of --repeats
@@ -41,6 +41,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results" / "store.json"
 PYTHON = sys.executable
+TIMED = "render_seconds"  # the one column of the data tables that holds a wall time (videos, frame_stats)
 SMALL_JOB = """name: walk
 seed: 0
 scenes:
@@ -131,17 +132,27 @@ def walk(tree: Path, folder: Path) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+CRASHES: list[str] = []  # commands that died of a signal (timed again; listed in the results)
+
+
 def mvpd(tree: Path, *args: str) -> float:
     """Seconds one whole `mvpd` command takes with the code of `tree`."""
-    started = time.perf_counter()
-    # In the tree's folder: Ray puts the driver's working folder on its workers' path.
-    subprocess.run([PYTHON, "-P", "-c", "from pipeline.cli.main import app; app()", *args], env=in_tree(tree), cwd=tree,
-                   check=True, capture_output=True)
-    return time.perf_counter() - started
+    for _ in range(3):
+        started = time.perf_counter()
+        # In the tree's folder: Ray puts the driver's working folder on its workers' path.
+        done = subprocess.run([PYTHON, "-P", "-c", "from pipeline.cli.main import app; app()", *args], env=in_tree(tree),
+                              cwd=tree, capture_output=True, text=True)
+        seconds = time.perf_counter() - started
+        if done.returncode >= 0:
+            break
+        CRASHES.append(f"{tree.name}: mvpd {' '.join(args[:1])} died of signal {-done.returncode}: {done.stderr[-300:]}")
+    if done.returncode != 0:
+        raise RuntimeError(f"mvpd {' '.join(args)} exited {done.returncode}: {done.stdout[-500:]} {done.stderr[-500:]}")
+    return seconds
 
 
 def digests(run: Path) -> dict[str, str]:
-    """Path -> SHA-256 of every output file (videos parts: of their rows without the render time)."""
+    """Path -> SHA-256 of every output file (a Parquet part with render times: of its rows without them)."""
     import pyarrow.parquet as pq
 
     found = {}
@@ -149,8 +160,8 @@ def digests(run: Path) -> dict[str, str]:
         relative = path.relative_to(run).as_posix()
         if relative.split("/")[0] in ("_state", "logs", "status", "previews"):
             continue
-        if relative.startswith("videos/part-"):
-            table = pq.read_table(path).drop_columns(["render_seconds"])
+        if path.suffix == ".parquet" and TIMED in pq.read_schema(path).names:
+            table = pq.read_table(path).drop_columns([TIMED])
             found[relative] = hashlib.sha256(str(table.to_pylist()).encode()).hexdigest()
         else:
             found[relative] = hashlib.sha256(path.read_bytes()).hexdigest()
@@ -166,6 +177,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--before", type=Path, required=True, help="a checkout of the code before pipeline/store/")
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--demo-repeats", type=int, default=2, help="fresh demo-job runs per tree")
     args = parser.parse_args()
     trees = {"before": args.before.resolve(), "after": REPO}
     sys.path.insert(0, str(REPO))
@@ -184,11 +196,13 @@ def main() -> None:
             print(name, "walk:", {k: v for k, v in result["walk"][name].items() if k not in ("walk", "circles")},
                   result["walk"][name]["circles"], flush=True)
         demo = REPO / "jobs" / "demo.yaml"
-        runs = {}
-        for name, tree in trees.items():
-            runs[name] = folder / f"demo-{name}"
-            seconds = mvpd(tree, "submit", str(demo), "--run-dir", str(runs[name]))
-            print(f"{name}: demo job in {seconds:.0f} s", flush=True)
+        runs, demo_times = {}, {"before": [], "after": []}
+        for repeat in range(args.demo_repeats):  # before, after, then after, before: a load drift hits both
+            for name in (("before", "after") if repeat % 2 == 0 else ("after", "before")):
+                target = runs.setdefault(name, folder / f"demo-{name}") if repeat == 0 else folder / f"{name}-{repeat}"
+                demo_times[name].append(mvpd(trees[name], "submit", str(demo), "--run-dir", str(target)))
+                print(f"{name}: demo job in {demo_times[name][-1]:.0f} s", flush=True)
+        result["demo_job"] = {name: spread(values) for name, values in demo_times.items()}
         before, after = digests(runs["before"]), digests(runs["after"])
         differing = sorted(p for p in before.keys() | after.keys() if before.get(p) != after.get(p))
         result["bytes"] = {"files_compared": len(before), "differing": differing, "identical": not differing}
@@ -208,6 +222,7 @@ def main() -> None:
                                         "after_over_before": round(ratio, 3)}
             print(f"{command}: before {statistics.median(by_tree['before']):.2f} s, after "
                   f"{statistics.median(by_tree['after']):.2f} s (after/before {ratio:.2f})", flush=True)
+    result["crashes"] = CRASHES
     RESULTS.write_text(json.dumps(result, indent=1) + "\n")
     print(f"wrote {RESULTS}")
 
