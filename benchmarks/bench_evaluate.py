@@ -33,6 +33,7 @@ from pipeline.evaluate.frames import LazyFrames, ground_truth_frame  # noqa: E40
 from pipeline.evaluate.ground_truth import GroundTruthLoader, MvpdSplit  # noqa: E402
 from pipeline.evaluate.predictions import PredictionSource  # noqa: E402
 from pipeline.evaluate.vsq import VsqProtocol, evaluate_video  # noqa: E402
+from pipeline.store.run_folder import RunFolder  # noqa: E402
 
 SMALL = REPO / "tests" / "data" / "vsq_small"
 RESULTS = REPO / "benchmarks" / "results" / "evaluate.json"
@@ -165,7 +166,7 @@ def end_to_end_ray(root: Path) -> dict[str, tuple[int, float]]:
     with tempfile.TemporaryDirectory() as work:
         for name, force in (("ray_2_cores_cold", False), ("ray_2_cores_warm", True)):
             started = time.perf_counter()
-            result = evaluate_mvpd(root / "MVPd", "test", root / "pred", Path(work) / "eval", force=force)
+            result = evaluate_mvpd(root / "MVPd", "test", root / "pred", RunFolder(Path(work) / "eval"), force=force)
             seconds = time.perf_counter() - started
             if result.failed:
                 raise RuntimeError(f"benchmark evaluation failed: {result.failed[0].message}")

@@ -68,7 +68,7 @@ def register(app: typer.Typer) -> None:
                               videos=parse_video_patterns(videos), executor=executor.value)
                 if gt_mvpd is not None:
                     assert split is not None and out is not None
-                    result = evaluate_mvpd(gt_mvpd, split, pred, work or out.with_suffix(".run"), **common)  # type: ignore[arg-type]
+                    result = evaluate_mvpd(gt_mvpd, split, pred, RunFolder(work or out.with_suffix(".run")), **common)  # type: ignore[arg-type]
                     result.split = split
                 else:
                     assert run is not None

@@ -142,7 +142,7 @@ def import_command(
     check_plain_name(split, "--split")  # a plain name: <root>/<split> stays inside the release root
     try:
         with stage_progress() as observer:
-            summary = import_release(root, split, run_dir, embodiment, all_units, address,
+            summary = import_release(root, split, RunFolder(run_dir), embodiment, all_units, address,
                                      on_start=observer.on_stage_start, on_unit=observer.on_unit, executor=executor.value)
             if observer.on_stage_end is not None:
                 observer.on_stage_end(summary.report)  # the stage's summary line and its failed units

@@ -68,7 +68,7 @@ def evaluate_run(run: RunFolder, predictions: str | Path, embodiment: str | None
     return result
 
 
-def evaluate_mvpd(mvpd_root: str | Path, split: str, predictions: str | Path, work_dir: str | Path,
+def evaluate_mvpd(mvpd_root: str | Path, split: str, predictions: str | Path, work: RunFolder,
                   allow_missing: bool = False, overrides: dict[str, Any] | None = None, force: bool = False,
                   address: str | None = None, on_start: StartCallback | None = None,
                   on_unit: ProgressCallback | None = None, videos: tuple[str, ...] = (),
@@ -76,7 +76,8 @@ def evaluate_mvpd(mvpd_root: str | Path, split: str, predictions: str | Path, wo
     """VSQ of `predictions` on an MVPd split; counts go to `work_dir/metrics/` (an evaluation run folder)."""
     MvpdSplit(mvpd_root, split)  # fails fast, before any folder is created, without panoptic_<split>.json
     job = evaluation_job(Path(mvpd_root).resolve(), split, overrides)
-    run = RunFolder.create(work_dir, job)
+    run = work.prepared()
+    run.save_job(job)
     inputs = EvaluationInputs(str(Path(predictions).resolve()), allow_missing,
                               mvpd_root=str(Path(mvpd_root).resolve()), split=split, videos=videos)
     return _run(MvpdVsqEvaluator(job, inputs), run, force, address, on_start, on_unit, executor)

@@ -79,9 +79,13 @@ class RunFolder:
     @classmethod
     def prepare(cls, location: str | os.PathLike[str]) -> "RunFolder":
         """Create the folder (or reopen a run); refuses a non-empty folder that is not a run."""
-        run = cls(location)
-        run.files.prepare()
-        return run
+        return cls(location).prepared()
+
+    def prepared(self) -> "RunFolder":
+        """This run folder, created when new (or a run found in it); refuses a non-empty folder that is not a
+        run. For a command that checks its inputs before it creates anything."""
+        self.files.prepare()
+        return self
 
     @classmethod
     def create(cls, location: str | os.PathLike[str], job: Job) -> "RunFolder":

@@ -182,7 +182,7 @@ def exported(tiny_run: tuple[RunFolder, dict], tmp_path_factory: pytest.TempPath
 @pytest.fixture(scope="module")
 def reimported(exported: Path, tmp_path_factory: pytest.TempPathFactory, ray_session) -> RunFolder:
     run_root = tmp_path_factory.mktemp("back") / "run"
-    summary = import_release(exported, "test", run_root, embodiment="cam")
+    summary = import_release(exported, "test", RunFolder(run_root), embodiment="cam")
     assert sorted(summary.imported) == sorted(VIDEOS) and summary.failed == []
     return RunFolder.open(run_root)
 
@@ -301,7 +301,7 @@ def test_export_of_an_object_missing_from_the_objects_table_fails_cleanly(tiny_r
 @pytest.fixture(scope="module")
 def sample_run(tmp_path_factory: pytest.TempPathFactory, ray_session) -> RunFolder:
     run_root = tmp_path_factory.mktemp("sample") / "run"
-    summary = import_release(SAMPLE, "test", run_root)
+    summary = import_release(SAMPLE, "test", RunFolder(run_root))
     assert len(summary.imported) == 3 and summary.failed == []
     return RunFolder.open(run_root)
 
@@ -336,7 +336,7 @@ def test_stats_describe_the_imported_example(sample_run: RunFolder) -> None:
 
 def test_reimport_is_idempotent(sample_run: RunFolder) -> None:
     before = {d: sample_run.read(d).num_rows for d in ("videos", "frames", "segments", "objects")}
-    summary = import_release(SAMPLE, "test", sample_run.root)
+    summary = import_release(SAMPLE, "test", RunFolder(sample_run.root))
     assert summary.imported == [] and len(summary.up_to_date) == 3
     assert summary.report.outcomes == [] and summary.report.skipped == 5  # nothing ran: 3 videos + 1 scene + split flags
     assert {d: sample_run.read(d).num_rows for d in before} == before
@@ -368,7 +368,7 @@ def test_export_of_the_imported_example_reproduces_its_masks_and_instances(sampl
 def test_missing_panoptic_json_is_a_one_line_error_naming_the_file(tmp_path: Path) -> None:
     (tmp_path / "MVPd" / "test").mkdir(parents=True)
     with pytest.raises(MvpdFormatError) as caught:
-        import_release(tmp_path / "MVPd", "test", tmp_path / "run")
+        import_release(tmp_path / "MVPd", "test", RunFolder(tmp_path / "run"))
     message = str(caught.value)
     assert str(tmp_path / "MVPd" / "test" / "panoptic_test.json") in message and "\n" not in message
     assert not (tmp_path / "run").exists()
@@ -379,7 +379,7 @@ def test_a_broken_video_fails_alone_and_leaves_nothing_half_written(tmp_path: Pa
     shutil.copytree(SAMPLE, root)
     broken = f"00903-SAMPLEsc0003.{1:010d}.{1000:010d}"
     (root / "test" / "panomasksRGB" / broken / "0000000004.png").unlink()
-    summary = import_release(root, "test", tmp_path / "run")
+    summary = import_release(root, "test", RunFolder(tmp_path / "run"))
     assert [(o.unit, o.error_type) for o in summary.failed] == [(broken, "MvpdFormatError")]
     message = summary.failed[0].message
     assert "0000000004.png: no such file" in message and "\n" not in message
@@ -412,7 +412,7 @@ def test_cli_lists_a_failed_video_exits_1_and_a_fixed_release_imports_only_it(tm
     shutil.copy(SAMPLE / "test" / "panomasksRGB" / broken / mask.name, mask)
     result = CliRunner().invoke(app, arguments)
     assert result.exit_code == 0, result.output
-    summary = import_release(root, "test", tmp_path / "run")  # everything is done now: nothing runs
+    summary = import_release(root, "test", RunFolder(tmp_path / "run"))  # everything is done now: nothing runs
     assert summary.report.outcomes == [] and summary.failed == []
     run = RunFolder.open(tmp_path / "run")
     assert run.marker("import", broken).attempt == 2  # the failed attempt, then the one that imported it

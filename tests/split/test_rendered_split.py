@@ -142,7 +142,7 @@ def test_exported_split_files_load_back_to_the_same_flags(run: RunFolder, tmp_pa
         image = panoptic["videos"][0]["images"][0]
         assert {"id", "width", "height", "depth_file_name", "scene_id"} <= set(image) and image["width"] == 64
         assert "segments_info" in panoptic["annotations"][0]["annotations"][0] and panoptic["instances"]
-        back = import_release(root, split, tmp_path / f"back-{split}", embodiment="ambient")
+        back = import_release(root, split, RunFolder(tmp_path / f"back-{split}"), embodiment="ambient")
         assert back.failed == []
         again = {r["video_name"]: r for r in split_rows(RunFolder(back.run_root))}
         keys = ("split", "empty", "zero_shot_rejected", "accepted")

@@ -101,7 +101,7 @@ class ImportSummary:
     seconds: float = 0.0
 
 
-def import_release(root: Path, split: str, run_root: Path, embodiment: str = DEFAULT_EMBODIMENT, force: bool = False,
+def import_release(root: Path, split: str, run: RunFolder, embodiment: str = DEFAULT_EMBODIMENT, force: bool = False,
                    address: str | None = None, on_start: Callable[[StagePlan], None] | None = None,
                    on_unit: ProgressCallback | None = None, executor: ExecutorName = "auto") -> ImportSummary:
     """Read `<root>/<split>` of an MVPd release into the run folder `run_root` (created when new).
@@ -125,7 +125,7 @@ def import_release(root: Path, split: str, run_root: Path, embodiment: str = DEF
     videos = read_release_videos(data, paths.annotations)
     width, height = _frame_size(paths, videos[0])
     job = release_job(paths, embodiment, videos, width, height)
-    run = _open_run(Path(run_root), job)
+    _open_run(run, job)
     stage = MvpdImporter(job, videos)
     plans: list[StagePlan] = []
 
@@ -337,21 +337,20 @@ def release_job(paths: SplitPaths, embodiment: str, videos: list[ReleaseVideo], 
                           "check --embodiment") from None
 
 
-def _open_run(run_root: Path, job: Job) -> RunFolder:
+def _open_run(run: RunFolder, job: Job) -> None:
     """Create the run, or reopen one that holds the same import (anything else is refused)."""
     try:
-        run = RunFolder.prepare(run_root)
+        run.prepared()
     except RunFolderError as error:
         raise MvpdImportError(str(error)) from None
     if (run.root / JOB_FILE).is_file():
         existing = run.job()
         if existing.hash() != job.hash():
             raise MvpdImportError(
-                f"{run.root}: holds another job ({existing.name}, hash {existing.hash()}); import into a new folder"
+                f"{run.location}: holds another job ({existing.name}, hash {existing.hash()}); import into a new folder"
             )
-        return run
+        return
     run.save_job(job)
-    return run
 
 
 # ----------------------------------------------------------------------------------- one video
