@@ -20,7 +20,8 @@ so only the code differs:
             hold render times, compared without that column)
   circles   the import circles of each tree's package (tests/runtime/test_layers.py's AST check)
   speed     `mvpd status`, `mvpd query` (one count) and `mvpd submit` of the same job (nothing to do) on
-            the demo run, whole commands, before and after alternating; median and spread of --repeats
+            the demo run, whole commands, before and after alternating (the order swapped every round);
+            median and spread of --repeats, wall and CPU seconds
 
 Writes benchmarks/results/store.json.
 """
@@ -31,6 +32,7 @@ import argparse
 import hashlib
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -132,17 +134,21 @@ def walk(tree: Path, folder: Path) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+CPU_SECONDS: list[float] = []  # of each command, in order (the machine is shared: CPU time drifts less than wall)
 CRASHES: list[str] = []  # commands that died of a signal (timed again; listed in the results)
 
 
 def mvpd(tree: Path, *args: str) -> float:
-    """Seconds one whole `mvpd` command takes with the code of `tree`."""
+    """Seconds one whole `mvpd` command takes with the code of `tree` (its CPU seconds go to CPU_SECONDS)."""
     for _ in range(3):
+        used = resource.getrusage(resource.RUSAGE_CHILDREN)
         started = time.perf_counter()
         # In the tree's folder: Ray puts the driver's working folder on its workers' path.
         done = subprocess.run([PYTHON, "-P", "-c", "from pipeline.cli.main import app; app()", *args], env=in_tree(tree),
                               cwd=tree, capture_output=True, text=True)
         seconds = time.perf_counter() - started
+        now = resource.getrusage(resource.RUSAGE_CHILDREN)
+        CPU_SECONDS.append(now.ru_utime + now.ru_stime - used.ru_utime - used.ru_stime)
         if done.returncode >= 0:
             break
         CRASHES.append(f"{tree.name}: mvpd {' '.join(args[:1])} died of signal {-done.returncode}: {done.stderr[-300:]}")
@@ -210,18 +216,23 @@ def main() -> None:
         commands = {"status": ["status", str(runs["before"])],
                     "query": ["query", str(runs["before"]), "select count(*) from videos"],
                     "submit_noop": ["submit", str(demo), "--run-dir", str(runs["before"])]}
-        times: dict[str, dict[str, list[float]]] = {c: {"before": [], "after": []} for c in commands}
-        for _ in range(args.repeats):
+        times = {c: {"before": [], "after": []} for c in commands}
+        cpu = {c: {"before": [], "after": []} for c in commands}
+        for repeat in range(args.repeats):
             for command, arguments in commands.items():
-                for name, tree in trees.items():
-                    times[command][name].append(mvpd(tree, *arguments))
+                for name in (("before", "after") if repeat % 2 == 0 else ("after", "before")):
+                    times[command][name].append(mvpd(trees[name], *arguments))
+                    cpu[command][name].append(CPU_SECONDS[-1])
         result["speed"] = {}
-        for command, by_tree in times.items():
-            ratio = statistics.median(by_tree["after"]) / statistics.median(by_tree["before"])
-            result["speed"][command] = {"before": spread(by_tree["before"]), "after": spread(by_tree["after"]),
-                                        "after_over_before": round(ratio, 3)}
-            print(f"{command}: before {statistics.median(by_tree['before']):.2f} s, after "
-                  f"{statistics.median(by_tree['after']):.2f} s (after/before {ratio:.2f})", flush=True)
+        for command in commands:
+            wall, used = times[command], cpu[command]
+            ratio = statistics.median(wall["after"]) / statistics.median(wall["before"])
+            cpu_ratio = statistics.median(used["after"]) / statistics.median(used["before"])
+            result["speed"][command] = {"before": spread(wall["before"]), "after": spread(wall["after"]),
+                                        "after_over_before": round(ratio, 3), "cpu_before": spread(used["before"]),
+                                        "cpu_after": spread(used["after"]), "cpu_after_over_before": round(cpu_ratio, 3)}
+            print(f"{command}: before {statistics.median(wall['before']):.2f} s, after "
+                  f"{statistics.median(wall['after']):.2f} s (after/before {ratio:.2f}; CPU {cpu_ratio:.2f})", flush=True)
     result["crashes"] = CRASHES
     RESULTS.write_text(json.dumps(result, indent=1) + "\n")
     print(f"wrote {RESULTS}")

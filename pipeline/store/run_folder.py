@@ -27,8 +27,8 @@ import pyarrow as pa
 import yaml
 
 from pipeline.config import ConfigError, Job, job_from_resolved
-from pipeline.store.backends import LocalFiles, RunFiles, RunFolderError, StoreFiles
 from pipeline.errors import error_text
+from pipeline.store.backends import LocalFiles, RunFiles, RunFolderError, StoreFiles
 from pipeline.store.datasets import CheckedStages, TrustedPart, damage_line
 from pipeline.store.lock import Lease, check_fence
 from pipeline.store.marker_index import load_markers, write_index
