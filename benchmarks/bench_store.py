@@ -21,7 +21,9 @@ so only the code differs:
   circles   the import circles of each tree's package (tests/runtime/test_layers.py's AST check)
   speed     `mvpd status`, `mvpd query` (one count) and `mvpd submit` of the same job (nothing to do) on
             the demo run, whole commands, before and after alternating (the order swapped every round);
-            median and spread of --repeats, wall and CPU seconds
+            median and spread of --repeats, wall and CPU seconds; and what does not drift with the load:
+            the Python calls status and query make (cProfile's count) and the self time of importing
+            the modules these commands load (`-X importtime`, median of --repeats)
 
 Writes benchmarks/results/store.json.
 """
@@ -126,6 +128,36 @@ def in_tree(tree: Path) -> dict[str, str]:
     return {**os.environ, "PYTHONPATH": str(tree), "RAY_ADDRESS": ""}
 
 
+# Runs in the tree under test: the Python calls one command makes (deterministic, unlike its seconds).
+COUNTER = r"""
+import cProfile, pstats, sys
+from pipeline.cli.main import app
+profile = cProfile.Profile()
+profile.enable()
+try:
+    app(sys.argv[1:], standalone_mode=False)
+except SystemExit:
+    pass
+profile.disable()
+print(pstats.Stats(profile).total_calls)
+"""
+IMPORTS = "import pipeline.cli.main, pipeline.cli.run_commands, pipeline.io.query, pipeline.runtime.inspect"
+
+
+def calls(tree: Path, *args: str) -> int:
+    done = subprocess.run([PYTHON, "-P", "-c", COUNTER, *args], env=in_tree(tree), cwd=tree, check=True,
+                          capture_output=True, text=True)
+    return int(done.stdout.strip().splitlines()[-1])
+
+
+def import_seconds(tree: Path) -> float:
+    """Seconds the modules of these commands take to import (`python -X importtime`, self times summed)."""
+    done = subprocess.run([PYTHON, "-P", "-X", "importtime", "-c", IMPORTS], env=in_tree(tree), cwd=tree, check=True,
+                          capture_output=True, text=True)
+    rows = [line.split("|")[0].split(":")[-1] for line in done.stderr.splitlines()[1:] if "|" in line]
+    return sum(int(row) for row in rows) / 1e6
+
+
 def walk(tree: Path, folder: Path) -> dict:
     job = folder / "walk.yaml"
     job.write_text(SMALL_JOB)
@@ -223,6 +255,15 @@ def main() -> None:
                 for name in (("before", "after") if repeat % 2 == 0 else ("after", "before")):
                     times[command][name].append(mvpd(trees[name], *arguments))
                     cpu[command][name].append(CPU_SECONDS[-1])
+        result["calls"] = {command: {name: calls(tree, *arguments) for name, tree in trees.items()}
+                           for command, arguments in commands.items() if command != "submit_noop"}
+        print("python calls:", result["calls"], flush=True)
+        imports = {name: [] for name in trees}
+        for _ in range(args.repeats):
+            for name, tree in trees.items():
+                imports[name].append(import_seconds(tree))
+        result["import_seconds"] = {name: spread(values) for name, values in imports.items()}
+        print("imports:", {name: round(statistics.median(v), 3) for name, v in imports.items()}, flush=True)
         result["speed"] = {}
         for command in commands:
             wall, used = times[command], cpu[command]
