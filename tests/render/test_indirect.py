@@ -71,8 +71,8 @@ def test_indirect_light_is_zero_where_nothing_can_bounce() -> None:
     # The same box with grey sides does bounce light onto the far wall.
     grey, _ = _box(4.0)
     blocks = VideoRenderer(grey, embodiment(light=_spot(bounces=1)), exposure=2.0).indirect.irradiance(hits, pose)
-    assert blocks.shape == (24, 32, 3)  # one value per 2 x 2 pixels of the 64 x 48 frame
-    assert blocks.min() > 0.0
+    assert blocks.shape == (24, 32, 6)  # one value per 2 x 2 pixels of the 64 x 48 frame
+    assert blocks[..., :3].min() > 0.0 and blocks[..., 3:].max() == 0.0  # diffuse: no glossy term
 
 
 @pytest.mark.parametrize(("bounces", "traced"), [(1, 1), (2, 2), (8, 8), (8, 2)])
