@@ -48,6 +48,12 @@ SURFACE_OFFSET = 1e-4
 PLANE_TOLERANCE = 0.05
 # Ratio of successive bounces used for the untraced ones at most (a white closed room would give 1).
 MAX_BOUNCE_RATIO = 0.95
+# Cycles' Filter Glossy (its default 1.0, which the authors' and the reference renders kept): on a path that
+# already bounced with direction pdf p < 1, every lobe is widened to alpha >= 0.5 sqrt(1 - FILTER_GLOSSY p).
+# A virtual light is such a vertex: seen from x, p is x's cosine pdf cos_x / pi; further back along the
+# light's path p is below 1 / pi, hence BLURRED_ALPHA for every bounce the lights make.
+FILTER_GLOSSY = 1.0
+BLURRED_ALPHA = 0.5 * math.sqrt(1.0 - FILTER_GLOSSY / math.pi)
 # Values per gather point: irradiance E (RGB), then the glossy term G (RGB) the point's lobe reflects to the eye.
 CHANNELS = 6
 _SEED_STREAM = 0x1D1EC7  # separates the pattern's draws from every other use of the job seed
@@ -150,11 +156,12 @@ class IndirectGather:
         """The next direction of each path (n, 3) and the factor (n, 3) of its flux, f cos / pdf: the lobe
         is picked by numbers[:, 0] in proportion to what it reflects, then sampled (cosine or GGX)."""
         tables = self.tables
+        alpha = max(tables.alpha, BLURRED_ALPHA)
         lobe = tables.albedo[table_entries(np.sum(normals * incoming, axis=1))]
         glossy_share = lobe / np.maximum(lobe + rho.mean(axis=1) * (1.0 - lobe), 1e-12)
         glossy = numbers[:, 0] < glossy_share
         directions = cosine_directions(normals, numbers[:, 1:])
-        half = ggx_half_vectors(normals, numbers[:, 1:], tables.alpha)
+        half = ggx_half_vectors(normals, numbers[:, 1:], alpha)
         cos_oh = np.sum(incoming * half, axis=1)
         mirrored = 2.0 * cos_oh[:, None] * half - incoming
         directions = np.where(glossy[:, None], mirrored, directions)
@@ -163,7 +170,7 @@ class IndirectGather:
         energy = tables.energy[table_entries(cos_o)]
         with np.errstate(divide="ignore", invalid="ignore"):
             # GGX sampled by D cos_h: f cos_o / pdf = G2 F (w_o . h) / (mu_i cos_h).
-            glossy_weight = (smith_g2(cos_i, cos_o, tables.alpha) * fresnel_dielectric(cos_oh, tables.ior) * cos_oh
+            glossy_weight = (smith_g2(cos_i, cos_o, alpha) * fresnel_dielectric(cos_oh, tables.ior) * cos_oh
                              / (cos_i * cos_h) * energy / glossy_share)
             glossy_weight = np.where(cos_o > 0, glossy_weight, 0.0)[:, None]
             diffuse_weight = rho * (1.0 - tables.albedo[table_entries(cos_o)])[:, None] / (1.0 - glossy_share)[:, None]
@@ -234,7 +241,7 @@ class IndirectGather:
         shadow = _shadow_rays(points, normals, eyes, depth, row_offset, interleave, lights.positions, lights.normals,
                               lights.incoming, lights.flux, lights.coloured_flux, starts,
                               np.float32(self.settings.clamp_distance ** 2), np.float32(SURFACE_OFFSET),
-                              tables.diffuse, tables.energy, tables.alpha, tables.ior)
+                              tables.diffuse, tables.energy, np.float32(tables.alpha), tables.ior, np.float32(FILTER_GLOSSY))
         cells, contributions, ray_origins, ray_directions = shadow
         blocked = np.empty(len(cells), np.bool_)
         self.mesh.occluded(ray_origins, ray_directions, np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
@@ -350,7 +357,7 @@ def _glossy(nx, ny, nz, ax, ay, az, bx, by, bz, cos_a, cos_b, energy, alpha, ior
 
 @numba.njit(nogil=True, cache=True)
 def _shadow_rays(points, point_normals, eyes, point_depth, row_offset, interleave, positions, normals, incoming, flux,
-                 coloured_flux, starts, clamp2, offset, base, energy, alpha, ior):  # pragma: no cover (compiled)
+                 coloured_flux, starts, clamp2, offset, base, energy, alpha, ior, filter_glossy):  # pragma: no cover
     """Every (gather point, light of its subset) pair that faces each other: the cell, the unshadowed
     contribution (irradiance RGB, glossy term RGB) and the shadow ray (origin off the surface, direction to
     the light: t in [0, 1)). A light at y lit from w_i sends the point x the irradiance
@@ -393,7 +400,8 @@ def _shadow_rays(points, point_normals, eyes, point_depth, row_offset, interleav
                 geometry = cos_x * cos_j / max(r2, clamp2)
                 wx, wy, wz = incoming[j, 0], incoming[j, 1], incoming[j, 2]
                 cos_in = mx * wx + my * wy + mz * wz
-                lobe = _glossy(mx, my, mz, wx, wy, wz, -dx, -dy, -dz, cos_in, cos_j, energy, alpha, ior) if cos_in > 0 else 0.0
+                blurred = max(alpha, np.float32(0.5) * np.sqrt(max(np.float32(1.0) - filter_glossy * cos_x * inverse_pi, np.float32(0.0))))
+                lobe = _glossy(mx, my, mz, wx, wy, wz, -dx, -dy, -dz, cos_in, cos_j, energy, blurred, ior) if cos_in > 0 else 0.0
                 diffuse = base[_entry(cos_j)] * inverse_pi
                 seen = pi * _glossy(nx, ny, nz, dx, dy, dz, ex, ey, ez, cos_x, cos_eye, energy, alpha, ior) if cos_eye > 0 else 0.0
                 cells[n] = i * columns + k
@@ -472,8 +480,8 @@ def _upsample(combined, points, point_normals, point_depth, depth, direction, no
               out):  # pragma: no cover (compiled)
     """Blocks of rows block_start.. (out holds those rows; block (R, C) is the surface of pixel (INDIRECT_BLOCK R,
     INDIRECT_BLOCK C)): the bilinear mix of the four nearest gather points, each weighted by geometric similarity;
-    where none is alike (a surface smaller than a cell), the most similar of the 4 x 4 points around, or
-    black when none is on a surface facing the same way."""
+    where none is alike (a surface smaller than a cell), the most similar of the 4 x 4 points around, else the
+    one of them facing the most alike, or black when all face away."""
     height, width = out.shape[0], out.shape[1]
     rows, columns = point_depth.shape
     half = np.float32(stride // 2)
@@ -511,12 +519,20 @@ def _upsample(combined, points, point_normals, point_depth, depth, direction, no
                     out[local_row, block_column, c] = (w00 * combined[i0, k0, c] + w01 * combined[i0, k1, c]
                                                  + w10 * combined[i1, k0, c] + w11 * combined[i1, k1, c]) / total
                 continue
+            # No neighbour on this surface (a thin frame, an edge, a small object): the most similar of the
+            # 4 x 4 around; failing that, the one whose surface faces the most alike (on another plane).
             best, best_a, best_b = np.float32(0.0), -1, -1
+            facing_best, facing_a, facing_b = np.float32(0.0), -1, -1
             for a in range(max(i0 - 1, 0), min(i0 + 3, rows)):
                 for b in range(max(k0 - 1, 0), min(k0 + 3, columns)):
                     w = _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, a, b)
                     if w > best:
                         best, best_a, best_b = w, a, b
+                    cosine = nx * point_normals[a, b, 0] + ny * point_normals[a, b, 1] + nz * point_normals[a, b, 2]
+                    if np.isfinite(point_depth[a, b]) and cosine > facing_best:
+                        facing_best, facing_a, facing_b = cosine, a, b
+            if best_a < 0:
+                best_a, best_b = facing_a, facing_b
             if best_a >= 0:
                 for c in range(CHANNELS):
                     out[local_row, block_column, c] = combined[best_a, best_b, c]
