@@ -217,8 +217,9 @@ class IndirectLight(Strict):
     gather_stride: int = Field(12, ge=1, le=64, description="pixels between gather points (each axis)")
     interleave: int = Field(8, ge=1, le=8, description="gather points in a block of interleave x interleave see "
                             "different subsets of the lights")
-    clamp_distance: float = Field(0.3, gt=0, description="metres; a light nearer than this to a gather point counts "
-                                  "as this far (bounds the 1/d^2 spikes of virtual lights)")
+    clamp_distance: float = Field(0.8, gt=0, description="metres; a light nearer than this to a gather point counts "
+                                  "as this far (bounds the 1/d^2 spikes of virtual lights); rays from the gather "
+                                  "point bring back what the clamp leaves out of surfaces nearer than this")
 
 
 class Illumination(Strict):

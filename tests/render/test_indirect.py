@@ -95,6 +95,19 @@ def test_closed_box_mean_radiance_approaches_direct_over_one_minus_albedo(bounce
         assert ratio == pytest.approx(1.0 / (1.0 - rho), rel=0.04)
 
 
+def test_a_wide_clamp_costs_no_light_in_the_closed_box() -> None:
+    """Lights nearer than 1 m count as 1 m away (12 % of the box's light lost); the near-field rays bring it back."""
+    scene, sides = _box(2.0)
+    rho = float(srgb_to_linear(np.array([GREY / 255.0]))[0])
+    light = Illumination(kind="spot", power=20.0, indirect=IndirectLight(
+        bounces=8, traced_bounces=8, virtual_lights=64, gather_stride=4, interleave=2, clamp_distance=1.0))
+    gather = IndirectGather(SceneRaycaster(scene).mesh, SurfaceColors(scene), light, seed=0)
+    points, normals = _surface_samples(sides, 3000, np.random.default_rng(1))
+    indirect = gather.irradiance_at(points, normals, look_at(np.zeros(3), np.array([0.3, 0.2, 1.0])))[:, 0]
+    ratio = 1.0 + indirect.mean() / (gather.ray_flux.sum() / (6 * 2.0 * 2.0))
+    assert ratio == pytest.approx(1.0 / (1.0 - rho), rel=0.04)
+
+
 def test_same_seed_same_bytes_and_a_still_camera_does_not_flicker() -> None:
     scene = room_scene()
     pose = look_at(np.array([0.5, 1.0, -1.5]), np.array([0.0, 0.4, 1.5]))
