@@ -13,8 +13,8 @@ and the glossy term its lobe sends to the eye; the shader reflects both (materia
    first lands, so the first-bounce lights are spread over the visible surfaces and those beside, below
    and above the view that the 180-degree cone also lights.
 2. Gather. Every `gather_stride` pixels a gather point x sums E = sum_j Phi_j f_j cos_j cos_x / max(r^2,
-   clamp^2) over the virtual lights it sees (one shadow ray each), and the glossy term sum_j E_j pi f_x. Interleaved sampling (Keller and
-   Heidrich 2001): the lights are split into interleave^2 stratified subsets and neighbouring gather
+   clamp^2) over the virtual lights it sees (one shadow ray each), and the glossy term sum_j E_j pi f_x.
+   Interleaved sampling (Keller and Heidrich 2001): the lights are split into interleave^2 stratified subsets and neighbouring gather
    points take different subsets, so each point pays for 1 / interleave^2 of the shadow rays.
 3. Filter. Each gather point averages the block of interleave x interleave points around it (every
    subset once), weighted by how alike the surfaces are (normal and plane distance), and then once more
@@ -22,8 +22,8 @@ and the glossy term its lobe sends to the eye; the shader reflects both (materia
    the bilinear mix of its four nearest gather points under the same geometric weights.
 
 The pattern of directions is drawn once from the job's seed: a still camera gives the same frame every
-time (no flicker), and the same job gives the same bytes. Virtual lights clamp the 1/r^2 of near pairs (`clamp_distance`); rays from each gather point bring back what the
-clamp leaves out of the surfaces nearer than that (`_near_field`).
+time (no flicker), and the same job gives the same bytes. Virtual lights clamp the 1/r^2 of near pairs
+(`clamp_distance`); rays from each gather point bring back what the clamp leaves out (`_near_field`).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from pipeline.config import Illumination
 from pipeline.render.embree import EmbreeMesh
 from pipeline.render.lighting import (INDIRECT_BLOCK, SurfaceColors, cone_falloff, radiant_intensity,
                                       srgb_to_linear)
-from pipeline.render.material import (TABLE_SIZE, fresnel_dielectric, ggx_distribution, glossy_brdf, reflection_tables,
+from pipeline.render.material import (TABLE_SIZE, ReflectionTables, fresnel_dielectric, glossy_brdf, reflection_tables,
                                       smith_g2)
 from pipeline.render.raycaster import RayHits, row_bands, thread_pool
 
@@ -52,10 +52,9 @@ PLANE_TOLERANCE = 0.05
 MAX_BOUNCE_RATIO = 0.95
 # Cycles' Filter Glossy (its default 1.0, which the authors' and the reference renders kept): on a path that
 # already bounced with direction pdf p < 1, every lobe is widened to alpha >= 0.5 sqrt(1 - FILTER_GLOSSY p).
-# A virtual light is such a vertex: seen from x, p is x's cosine pdf cos_x / pi; further back along the
-# light's path p is below 1 / pi, hence BLURRED_ALPHA for every bounce the lights make.
+# A virtual light is such a vertex: seen from a gather point x, p is x's cosine pdf cos_x / pi; further back
+# along the light's path p is below 1 / pi, so the lights' own bounces take cos_x = 1 (`widened_alpha`).
 FILTER_GLOSSY = 1.0
-BLURRED_ALPHA = 0.5 * math.sqrt(1.0 - FILTER_GLOSSY / math.pi)
 # Values per gather point: irradiance E (RGB), then the glossy term G (RGB) the point's lobe reflects to the eye.
 CHANNELS = 6
 # Rays per gather point that find the surfaces nearer than the clamp distance (bias compensation).
@@ -130,8 +129,8 @@ class IndirectGather:
             ratio = np.minimum(emitted[-1] / np.maximum(emitted[-2], 1e-30), MAX_BOUNCE_RATIO)
             series = sum(ratio**k for k in range(untraced + 1))
             found[-1][3], found[-1][4] = found[-1][3] * series, found[-1][4] * series
-        parts = (np.concatenate([part[k] for part in found]) for k in range(6))
-        return VirtualLights(*(np.ascontiguousarray(part, np.float32 if k < 5 else np.int64) for k, part in enumerate(parts)))
+        parts = [np.concatenate([part[k] for part in found]) for k in range(6)]
+        return VirtualLights(*(np.ascontiguousarray(part, np.float32) for part in parts[:5]), parts[5])
 
     def _land(self, origins: np.ndarray, directions: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -161,7 +160,7 @@ class IndirectGather:
         """The next direction of each path (n, 3) and the factor (n, 3) of its flux, f cos / pdf: the lobe
         is picked by numbers[:, 0] in proportion to what it reflects, then sampled (cosine or GGX)."""
         tables = self.tables
-        alpha = max(tables.alpha, BLURRED_ALPHA)
+        alpha = float(widened_alpha(tables.alpha, 1.0))
         lobe = tables.albedo[table_entries(np.sum(normals * incoming, axis=1))]
         glossy_share = lobe / np.maximum(lobe + rho.mean(axis=1) * (1.0 - lobe), 1e-12)
         glossy = numbers[:, 0] < glossy_share
@@ -185,8 +184,8 @@ class IndirectGather:
     # ------------------------------------------------------------------------------ gather
     def irradiance_at(self, points: np.ndarray, normals: np.ndarray, camera_to_world: np.ndarray) -> np.ndarray:
         """(n, 6) indirect light at surface points (n, 3) with unit normals (n, 3) facing the side to light,
-        from every virtual light of the spot at `camera_to_world` and the near field (no interleaving, no filter): the irradiance
-        E (W/m^2, RGB) and the glossy term G (RGB; the points' lobe reflects G / pi towards the camera): the
+        from every virtual light of the spot at `camera_to_world` and the near field (no interleaving, no
+        filter): the irradiance E (W/m^2, RGB) and the glossy term G (RGB; the points' lobe reflects G / pi towards the camera): the
         estimator itself, for checks against analytic cases."""
         lights = self.virtual_lights(camera_to_world)
         starts = np.array([0, len(lights.positions)], np.int64)
@@ -220,7 +219,8 @@ class IndirectGather:
         point_normals = np.zeros((rows, columns, 3), np.float32)
         eyes = np.zeros((rows, columns, 3), np.float32)
         point_depth = np.full((rows, columns), np.inf, np.float32)
-        _gather_points(hits.depth, hits.normal, hits.direction, origin, stride, points, point_normals, eyes, point_depth)
+        _gather_points(hits.depth, hits.normal, hits.direction, origin, stride, points, point_normals, eyes,
+                       point_depth)
         gathered = np.zeros((rows, columns, CHANNELS), np.float32)
 
         def gather(band: slice) -> None:
@@ -247,52 +247,53 @@ class IndirectGather:
     def _near_field(self, points: np.ndarray, normals: np.ndarray, eyes: np.ndarray, depth: np.ndarray,
                     camera_to_world: np.ndarray, gathered: np.ndarray) -> None:
         """Add to `gathered` the light the clamp of the virtual lights leaves out (Kollig and Keller's bias
-        compensation): NEAR_FIELD_RAYS cosine rays per gather point; a surface y hit at r < clamp brings
-        pi / K L_y (1 - r^2 / clamp^2), L_y being what y reflects towards the point of the spot's direct light
-        (shadow ray to the camera) and, as a stand-in for its own indirect light, of the point's irradiance."""
-        valid = np.isfinite(depth).ravel()
-        count = int(valid.sum())
-        if count == 0:
+        compensation): K = NEAR_FIELD_RAYS cosine rays per gather point x; a surface y hit at r < clamp brings
+        pi / K L_y (1 - r^2 / clamp^2), L_y being what y reflects towards x (`_reflected_towards`)."""
+        cells = np.flatnonzero(np.isfinite(depth).ravel())
+        if len(cells) == 0:
             return
-        tables, clamp = self.tables, self.settings.clamp_distance
-        rays = NEAR_FIELD_RAYS
-        cells = np.flatnonzero(valid)
-        x, n, eye = (a.reshape(-1, 3)[cells].astype(np.float64) for a in (points, normals, eyes))
-        irradiance = gathered.reshape(-1, CHANNELS)[cells, :3].astype(np.float64)
-        numbers = self._near_numbers(len(valid), rays)[cells].reshape(-1, 2)
-        x, n, eye, irradiance = (np.repeat(a, rays, axis=0) for a in (x, n, eye, irradiance))
-        directions = cosine_directions(n, numbers)
+        rays, clamp = NEAR_FIELD_RAYS, self.settings.clamp_distance
+        x, n, eye = (np.repeat(a.reshape(-1, 3)[cells].astype(np.float64), rays, axis=0)
+                     for a in (points, normals, eyes))
+        directions = cosine_directions(n, self._near_numbers(depth.size, rays)[cells].reshape(-1, 2))
         camera = np.asarray(camera_to_world, np.float64)[:3, 3]
         origins = x + n * (SURFACE_OFFSET * (1.0 + np.linalg.norm(x - camera, axis=1, keepdims=True)))
-        positions, normals_y, incoming, rho, hit = self._land(origins.astype(np.float32), directions.astype(np.float32))
+        positions, surface_normals, towards_x, rho, hit = self._land(origins.astype(np.float32),
+                                                                    directions.astype(np.float32))
         distance = np.linalg.norm(positions - origins, axis=1)
-        near = hit & (distance < clamp)
-        if not near.any():
-            return
-        y, n_y, w_x, rho, r = positions[near].astype(np.float64), normals_y[near].astype(np.float64), incoming[near].astype(np.float64), rho[near], distance[near]
-        to_light = camera - y
-        d = np.linalg.norm(to_light, axis=1)
-        to_light /= d[:, None]
-        cos_light = np.sum(n_y * to_light, axis=1)
-        axis = np.asarray(camera_to_world, np.float64)[:3, 2]
-        spot = radiant_intensity(self.illumination) * cone_falloff(-np.sum(to_light * axis, axis=1), self.illumination)
-        lift = SURFACE_OFFSET * (1.0 + d)[:, None]
-        blocked = np.empty(len(y), np.bool_)
-        shadow_origins = (y + n_y * lift).astype(np.float32)
-        self.mesh.occluded(shadow_origins, (camera - shadow_origins).astype(np.float32),
-                           np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
-        direct = np.where(blocked | (cos_light <= 0), 0.0, spot * np.maximum(cos_light, 0.0) / d**2)
-        cos_x = np.sum(n_y * w_x, axis=1)
-        base = tables.diffuse[table_entries(cos_x)] / math.pi
-        blurred = np.maximum(tables.alpha, 0.5 * np.sqrt(np.maximum(0.0, 1.0 - FILTER_GLOSSY * np.sum(n[near] * directions[near], axis=1) / math.pi)))
-        lobe = _lobe(n_y, to_light, w_x, blurred, tables)
-        reflected = rho * base[:, None] * (direct[:, None] + irradiance[near]) + (lobe * direct)[:, None]
-        contribution = math.pi / rays * reflected * (1.0 - (r / clamp) ** 2)[:, None]
-        seen = math.pi * _lobe(n[near], directions[near], eye[near], np.full(len(y), tables.alpha), tables)
-        owner = cells[np.repeat(np.arange(count), rays)[near]]
+        near = np.flatnonzero(hit & (distance < clamp))
+        owner = cells[near // rays]
+        irradiance = gathered.reshape(-1, CHANNELS)[owner, :3].astype(np.float64)
+        radiance = self._reflected_towards(positions[near], surface_normals[near], towards_x[near], rho[near],
+                                           np.sum(n[near] * directions[near], axis=1), irradiance, camera_to_world)
+        contribution = math.pi / rays * radiance * (1.0 - (distance[near] / clamp) ** 2)[:, None]
+        alpha = np.full(len(near), self.tables.alpha)
+        seen = math.pi * _lobe(n[near], directions[near], eye[near], alpha, self.tables)
         flat = gathered.reshape(-1, CHANNELS)
         np.add.at(flat, (owner, slice(0, 3)), contribution.astype(np.float32))
         np.add.at(flat, (owner, slice(3, 6)), (contribution * seen[:, None]).astype(np.float32))
+
+    def _reflected_towards(self, y: np.ndarray, normals: np.ndarray, towards_x: np.ndarray, rho: np.ndarray,
+                           cos_at_x: np.ndarray, irradiance: np.ndarray, camera_to_world: np.ndarray) -> np.ndarray:
+        """(n, 3) radiance surfaces at y send towards x: the spot's direct light (one shadow ray to the camera)
+        through the base and the lobe (widened as Filter Glossy does after x's bounce at cos_at_x), and, as a
+        stand-in for y's own indirect light, x's `irradiance` through the base."""
+        camera = np.asarray(camera_to_world, np.float64)[:3, 3]
+        y, normals, towards_x = (a.astype(np.float64) for a in (y, normals, towards_x))
+        to_light = camera - y
+        distance = np.linalg.norm(to_light, axis=1)
+        to_light /= distance[:, None]
+        cos_light = np.sum(normals * to_light, axis=1)
+        off_axis = -np.sum(to_light * np.asarray(camera_to_world, np.float64)[:3, 2], axis=1)
+        spot = radiant_intensity(self.illumination) * cone_falloff(off_axis, self.illumination)
+        blocked = np.empty(len(y), np.bool_)
+        shadow_origins = (y + normals * (SURFACE_OFFSET * (1.0 + distance))[:, None]).astype(np.float32)
+        self.mesh.occluded(shadow_origins, (camera - shadow_origins).astype(np.float32),
+                           np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
+        direct = np.where(blocked, 0.0, spot * np.maximum(cos_light, 0.0) / distance**2)
+        base = self.tables.diffuse[table_entries(np.sum(normals * towards_x, axis=1))] / math.pi
+        lobe = _lobe(normals, to_light, towards_x, widened_alpha(self.tables.alpha, cos_at_x), self.tables)
+        return rho * base[:, None] * (direct[:, None] + irradiance) + (lobe * direct)[:, None]
 
     def _near_numbers(self, cells: int, rays: int) -> np.ndarray:
         """(cells, rays, 2) uniform numbers of the near-field rays, stratified per cell (fixed per job and grid)."""
@@ -309,7 +310,7 @@ class IndirectGather:
         shadow = _shadow_rays(points, normals, eyes, depth, row_offset, interleave, lights.positions, lights.normals,
                               lights.incoming, lights.flux, lights.coloured_flux, starts,
                               np.float32(self.settings.clamp_distance ** 2), np.float32(SURFACE_OFFSET),
-                              tables.diffuse, tables.energy, np.float32(tables.alpha), tables.ior, np.float32(FILTER_GLOSSY))
+                              tables.diffuse, tables.energy, tables.alpha, tables.ior)
         cells, contributions, ray_origins, ray_directions = shadow
         blocked = np.empty(len(cells), np.bool_)
         self.mesh.occluded(ray_origins, ray_directions, np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
@@ -349,17 +350,23 @@ def spot_pattern(illumination: Illumination, count: int, interleave: int, rng: n
     return directions, np.full(k * k, total_flux / (k * k)), groups
 
 
-def _lobe(normals: np.ndarray, a: np.ndarray, b: np.ndarray, alpha: np.ndarray, tables) -> np.ndarray:
+@numba.njit(nogil=True, cache=True)
+def widened_alpha(alpha, cos_x):  # pragma: no cover (compiled)
+    """GGX alpha of a lobe after a cosine bounce at cos_x, as Cycles' Filter Glossy widens it (scalars or arrays)."""
+    return np.maximum(alpha, 0.5 * np.sqrt(np.maximum(0.0, 1.0 - FILTER_GLOSSY * cos_x / math.pi)))
+
+
+def _lobe(normals: np.ndarray, a: np.ndarray, b: np.ndarray, alpha: np.ndarray, tables: ReflectionTables
+          ) -> np.ndarray:
     """(n,) the lobe f(a, b) / E_ss(cos_b) of surfaces of `normals` between unit directions a and b (n, 3)."""
     half = a + b
     half /= np.maximum(np.linalg.norm(half, axis=1, keepdims=True), 1e-12)
     cos_a, cos_b = np.sum(normals * a, axis=1), np.sum(normals * b, axis=1)
     cos_h, cos_bh = np.sum(normals * half, axis=1), np.sum(b * half, axis=1)
-    ok = (cos_a > 1e-6) & (cos_b > 1e-6) & (cos_h > 0)
-    cos_a, cos_b = np.maximum(cos_a, 1e-6), np.maximum(cos_b, 1e-6)
-    value = (ggx_distribution(cos_h, alpha) * smith_g2(cos_a, cos_b, alpha) * fresnel_dielectric(np.clip(cos_bh, 1e-6, 1.0), tables.ior)
-             / (4.0 * cos_a * cos_b) * tables.energy[table_entries(cos_b)])
-    return np.where(ok, value, 0.0)
+    facing = (cos_a > 1e-6) & (cos_b > 1e-6) & (cos_h > 0) & (cos_bh > 0)
+    cos_a, cos_b, cos_bh = (np.maximum(c, 1e-6) for c in (cos_a, cos_b, cos_bh))
+    value = glossy_brdf(cos_h, cos_a, cos_b, cos_bh, alpha, tables.ior) * tables.energy[table_entries(cos_b)]
+    return np.where(facing, value, 0.0)
 
 
 def table_entries(mu: np.ndarray) -> np.ndarray:
@@ -391,7 +398,8 @@ def _about_normals(cos_theta: np.ndarray, turn: np.ndarray, normals: np.ndarray)
 
 
 @numba.njit(nogil=True, cache=True)
-def _gather_points(depth, normal, direction, origin, stride, points, point_normals, eyes, point_depth):  # pragma: no cover
+def _gather_points(depth, normal, direction, origin, stride, points, point_normals, eyes,
+                   point_depth):  # pragma: no cover (compiled)
     """The surface under the centre pixel of each stride x stride cell: position, normal facing the camera, unit
     direction to the camera, depth."""
     height, width = depth.shape
@@ -407,7 +415,8 @@ def _gather_points(depth, normal, direction, origin, stride, points, point_norma
                 points[i, k, axis] = origin[axis] + z * direction[row, column, axis]
                 facing += normal[row, column, axis] * direction[row, column, axis]
             sign = np.float32(-1.0) if facing > 0 else np.float32(1.0)
-            length = np.sqrt(direction[row, column, 0] ** 2 + direction[row, column, 1] ** 2 + direction[row, column, 2] ** 2)
+            ray = direction[row, column]
+            length = np.sqrt(ray[0] * ray[0] + ray[1] * ray[1] + ray[2] * ray[2])
             for axis in range(3):
                 point_normals[i, k, axis] = sign * normal[row, column, axis]
                 eyes[i, k, axis] = -direction[row, column, axis] / length
@@ -438,7 +447,7 @@ def _glossy(nx, ny, nz, ax, ay, az, bx, by, bz, cos_a, cos_b, energy, alpha, ior
 
 @numba.njit(nogil=True, cache=True)
 def _shadow_rays(points, point_normals, eyes, point_depth, row_offset, interleave, positions, normals, incoming, flux,
-                 coloured_flux, starts, clamp2, offset, base, energy, alpha, ior, filter_glossy):  # pragma: no cover
+                 coloured_flux, starts, clamp2, offset, base, energy, alpha, ior):  # pragma: no cover
     """Every (gather point, light of its subset) pair that faces each other: the cell, the unshadowed
     contribution (irradiance RGB, glossy term RGB) and the shadow ray (origin off the surface, direction to
     the light: t in [0, 1)). A light at y lit from w_i sends the point x the irradiance
@@ -481,10 +490,13 @@ def _shadow_rays(points, point_normals, eyes, point_depth, row_offset, interleav
                 geometry = cos_x * cos_j / max(r2, clamp2)
                 wx, wy, wz = incoming[j, 0], incoming[j, 1], incoming[j, 2]
                 cos_in = mx * wx + my * wy + mz * wz
-                blurred = max(alpha, np.float32(0.5) * np.sqrt(max(np.float32(1.0) - filter_glossy * cos_x * inverse_pi, np.float32(0.0))))
-                lobe = _glossy(mx, my, mz, wx, wy, wz, -dx, -dy, -dz, cos_in, cos_j, energy, blurred, ior) if cos_in > 0 else 0.0
+                lobe, seen = 0.0, 0.0
+                if cos_in > 0:
+                    widened = widened_alpha(alpha, cos_x)
+                    lobe = _glossy(mx, my, mz, wx, wy, wz, -dx, -dy, -dz, cos_in, cos_j, energy, widened, ior)
+                if cos_eye > 0:
+                    seen = pi * _glossy(nx, ny, nz, dx, dy, dz, ex, ey, ez, cos_x, cos_eye, energy, alpha, ior)
                 diffuse = base[_entry(cos_j)] * inverse_pi
-                seen = pi * _glossy(nx, ny, nz, dx, dy, dz, ex, ey, ez, cos_x, cos_eye, energy, alpha, ior) if cos_eye > 0 else 0.0
                 cells[n] = i * columns + k
                 for c in range(3):
                     received = (coloured_flux[j, c] * diffuse + flux[j, c] * lobe) * geometry

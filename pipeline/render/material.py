@@ -130,16 +130,17 @@ def lobe_albedos(mu: np.ndarray, alpha: float, ior: float) -> tuple[np.ndarray, 
     return single, fresnel
 
 
-@numba.njit(nogil=True, cache=True, inline="always")
+@numba.njit(nogil=True, cache=True)
 def glossy_brdf(cos_h, cos_i, cos_o, cos_oh, alpha, ior):  # pragma: no cover (compiled)
     """The single-scattering GGX lobe D G2 F / (4 mu_i mu_o) for unit directions at cosines cos_i, cos_o to
-    the normal, cos_h between normal and half vector, cos_oh between w_o and the half vector (scalars)."""
+    the normal, cos_h between normal and half vector, cos_oh between w_o and the half vector (scalars or
+    arrays alike: the compiled gather calls it per pair, numpy code on whole arrays)."""
     a2 = alpha * alpha
     d = cos_h * cos_h * (a2 - 1.0) + 1.0
     distribution = a2 / (math.pi * d * d)
-    lambda_i = 0.5 * (math.sqrt(1.0 + a2 * (1.0 / (cos_i * cos_i) - 1.0)) - 1.0)
-    lambda_o = 0.5 * (math.sqrt(1.0 + a2 * (1.0 / (cos_o * cos_o) - 1.0)) - 1.0)
-    g = math.sqrt(max(ior * ior - 1.0 + cos_oh * cos_oh, 0.0))
+    lambda_i = 0.5 * (np.sqrt(1.0 + a2 * (1.0 / (cos_i * cos_i) - 1.0)) - 1.0)
+    lambda_o = 0.5 * (np.sqrt(1.0 + a2 * (1.0 / (cos_o * cos_o) - 1.0)) - 1.0)
+    g = np.sqrt(np.maximum(ior * ior - 1.0 + cos_oh * cos_oh, 0.0))
     a = (g - cos_oh) / (g + cos_oh)
     b = (cos_oh * (g + cos_oh) - 1.0) / (cos_oh * (g - cos_oh) + 1.0)
     fresnel = 0.5 * a * a * (1.0 + b * b)

@@ -151,7 +151,8 @@ def test_light_meeting_a_surface_at_a_grazing_angle_bounces_on_forward_only_thro
     # A floor (normal +z) lit from the -x side at mu = 0.2: the principled lobe sends the light on forward (+x),
     # the diffuse base spreads it evenly (mean direction straight up).
     scene, _ = _box(2.0)
-    gather = IndirectGather(SceneRaycaster(scene).mesh, SurfaceColors(scene), _spot(bounces=2, material=material), seed=0)
+    light = _spot(bounces=2, material=material)
+    gather = IndirectGather(SceneRaycaster(scene).mesh, SurfaceColors(scene), light, seed=0)
     count, mu = 100_000, 0.2
     normals = np.tile([0.0, 0.0, 1.0], (count, 1))
     incoming = np.tile([-math.sqrt(1.0 - mu * mu), 0.0, mu], (count, 1))  # back towards the light
