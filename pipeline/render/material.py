@@ -9,14 +9,14 @@ with Fresnel for the view direction (Cycles' albedo scaling of layered closures)
 
 The light sits at the eye, so light and view directions coincide: the half vector is the view vector,
 v.h = 1 and the Fresnel term is F0 for every pixel. What the spot adds to a pixel then depends on one
-number, mu = cos(incidence), and three tables of mu (`ReflectionTables`) serve every frame:
+number, mu = cos(incidence), and tables of mu (`ReflectionTables`) serve every frame:
 
     L_direct   = E_direct / pi * (rho * diffuse(mu) + specular(mu))
     diffuse    = 1 - A(mu)                            (1 for `diffuse`)
     specular   = pi * D(mu) G2(mu, mu) F0 / (4 mu^2) / E_ss(mu)     (0 for `diffuse`)
 
 Bounced light arrives from other directions than the eye, so it meets the full lobe, f(w_i, w_o) =
-rho (1 - A(mu_o)) / pi + D(h) G2 F(w_o . h) / (4 mu_i mu_o) / E_ss(mu_o) (`brdf_glossy` and the tables'
+rho (1 - A(mu_o)) / pi + D(h) G2 F(w_o . h) / (4 mu_i mu_o) / E_ss(mu_o) (`glossy_brdf` and the tables'
 `energy` = 1 / E_ss; w_o is the direction the light leaves towards, as Cycles weighs by the view side).
 """
 
