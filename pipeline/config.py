@@ -213,12 +213,13 @@ class IndirectLight(Strict):
     bounces: int = Field(0, ge=0, le=64, description="bounces of light after the first hit; 0 = direct only")
     traced_bounces: int = Field(3, ge=1, le=64, description="bounces traced with virtual lights; the bounces past "
                                 "them repeat the last traced one, scaled by the measured ratio of successive bounces")
-    virtual_lights: int = Field(256, ge=16, le=65536, description="virtual point lights per bounce")
+    virtual_lights: int = Field(1024, ge=16, le=65536, description="virtual point lights per bounce")
     gather_stride: int = Field(12, ge=1, le=64, description="pixels between gather points (each axis)")
-    interleave: int = Field(4, ge=1, le=8, description="gather points in a block of interleave x interleave see "
+    interleave: int = Field(8, ge=1, le=8, description="gather points in a block of interleave x interleave see "
                             "different subsets of the lights")
-    clamp_distance: float = Field(0.3, gt=0, description="metres; a light nearer than this to a gather point counts "
-                                  "as this far (bounds the 1/d^2 spikes of virtual lights)")
+    clamp_distance: float = Field(0.8, gt=0, description="metres; a light nearer than this to a gather point counts "
+                                  "as this far (bounds the 1/d^2 spikes of virtual lights); rays from the gather "
+                                  "point bring back what the clamp leaves out of surfaces nearer than this")
 
 
 class Illumination(Strict):

@@ -75,9 +75,21 @@ def _library() -> ctypes.CDLL:
     return lib
 
 
-def _release(lib: ctypes.CDLL, scene: int, device: int) -> None:
-    lib.rtcReleaseScene(scene)
-    lib.rtcReleaseDevice(device)
+@cache
+def _device() -> int:
+    """The process's one Embree device, single-threaded (our own threads trace bands of rows), kept for the
+    life of the process: releasing a device lifts its TBB thread limit, and a TBB worker of the bundled
+    libtbb then spins in sched_yield beside the render threads (measured: up to 116 ms of CPU per frame
+    after a second BVH was built in one process, the frame's own work being ~150 ms)."""
+    lib = _library()
+    device = lib.rtcNewDevice(b"threads=1,set_affinity=0")
+    if not device:
+        raise RuntimeError("Embree could not create a device (rtcNewDevice returned NULL)")
+    version = lib.rtcGetDeviceProperty(device, _DEVICE_VERSION)
+    if version < EMBREE_MIN_VERSION:
+        lib.rtcReleaseDevice(device)
+        raise RuntimeError(f"Embree {version} is too old: pip install 'embreex>=4.4'")
+    return device
 
 
 class EmbreeMesh:
@@ -89,19 +101,13 @@ class EmbreeMesh:
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
         lib = _library()
-        self.device = lib.rtcNewDevice(b"threads=1,set_affinity=0")
-        if not self.device:
-            raise RuntimeError("Embree could not create a device (rtcNewDevice returned NULL)")
-        version = lib.rtcGetDeviceProperty(self.device, _DEVICE_VERSION)
-        if version < EMBREE_MIN_VERSION:
-            lib.rtcReleaseDevice(self.device)
-            raise RuntimeError(f"Embree {version} is too old: pip install 'embreex>=4.4'")
+        self.device = _device()
         # One spare vertex: Embree reads vertices with 16-byte loads, 4 bytes past the last one.
         self._vertices = np.zeros((len(vertices) + 1, 3), np.float32)
         self._vertices[:-1] = vertices
         self._faces = np.ascontiguousarray(faces, np.uint32)
         self.scene = lib.rtcNewScene(self.device)
-        weakref.finalize(self, _release, lib, self.scene, self.device)
+        weakref.finalize(self, lib.rtcReleaseScene, self.scene)
         geometry = lib.rtcNewGeometry(self.device, _GEOMETRY_TRIANGLE)
         lib.rtcSetSharedGeometryBuffer(geometry, _BUFFER_VERTEX, 0, _FORMAT_FLOAT3, self._vertices.ctypes.data,
                                        0, 12, len(vertices))

@@ -1,27 +1,29 @@
 """Indirect light of the spot at the camera: virtual point lights, gathered with shadow rays (instant radiosity).
 
 Beside the direct term (lighting.py), not inside it, as Mitsuba keeps `direct` and `path` apart: this
-module returns the irradiance E_indirect (W/m^2, RGB) that bounced light brings to each pixel's surface;
-the shader reflects it (material.py). Per frame:
+module returns the irradiance E_indirect (W/m^2, RGB) that bounced light brings to each pixel's surface,
+and the glossy term its lobe sends to the eye; the shader reflects both (material.py). Per frame:
 
 1. Virtual lights. Rays leave the spot (the camera centre) in a stratified pattern distributed like the
    spot's intensity I s(theta) over its cone, each carrying an equal share of the spot's flux. Where a
-   ray lands, the surface reflects its share (albedo and material) as a Lambertian virtual light; for
-   each further bounce the light sends its flux on along a cosine-distributed direction, and where that
-   lands a new virtual light re-emits what that surface reflects. Camera pixels are where the spot's light
+   ray lands, the surface reflects its share as a virtual light with the surface's material (diffuse base
+   and GGX lobe about the direction the light came from); for each further bounce the light sends its flux
+   on along a direction sampled from that material, and where that lands a new virtual light shines
+   what that surface reflects. Camera pixels are where the spot's light
    first lands, so the first-bounce lights are spread over the visible surfaces and those beside, below
    and above the view that the 180-degree cone also lights.
-2. Gather. Every `gather_stride` pixels a gather point sums E = sum_j Phi_j cos_j cos_x / (pi max(r^2,
-   clamp^2)) over the virtual lights it sees (one shadow ray each). Interleaved sampling (Keller and
-   Heidrich 2001): the lights are split into interleave^2 stratified subsets and neighbouring gather
+2. Gather. Every `gather_stride` pixels a gather point x sums E = sum_j Phi_j f_j cos_j cos_x / max(r^2,
+   clamp^2) over the virtual lights it sees (one shadow ray each), and the glossy term sum_j E_j pi f_x.
+   Interleaved sampling (Keller and Heidrich 2001): the lights are split into interleave^2 stratified subsets and neighbouring gather
    points take different subsets, so each point pays for 1 / interleave^2 of the shadow rays.
 3. Filter. Each gather point averages the block of interleave x interleave points around it (every
-   subset once), weighted by how alike the surfaces are (normal and plane distance); every pixel then takes
+   subset once), weighted by how alike the surfaces are (normal and plane distance), and then once more
+   (fewer blotches from the few lights of each subset); every pixel then takes
    the bilinear mix of its four nearest gather points under the same geometric weights.
 
 The pattern of directions is drawn once from the job's seed: a still camera gives the same frame every
 time (no flicker), and the same job gives the same bytes. Virtual lights clamp the 1/r^2 of near pairs
-(`clamp_distance`), which loses a little light in tight corners.
+(`clamp_distance`); rays from each gather point bring back what the clamp leaves out (`_near_field`).
 """
 
 from __future__ import annotations
@@ -36,7 +38,8 @@ from pipeline.config import Illumination
 from pipeline.render.embree import EmbreeMesh
 from pipeline.render.lighting import (INDIRECT_BLOCK, SurfaceColors, cone_falloff, radiant_intensity,
                                       srgb_to_linear)
-from pipeline.render.material import TABLE_SIZE, reflection_tables
+from pipeline.render.material import (TABLE_SIZE, ReflectionTables, fresnel_dielectric, glossy_brdf, reflection_tables,
+                                      smith_g2)
 from pipeline.render.raycaster import RayHits, row_bands, thread_pool
 
 # Offset of shadow and bounce rays off their surface, relative to the distance from the camera (float32
@@ -47,15 +50,28 @@ SURFACE_OFFSET = 1e-4
 PLANE_TOLERANCE = 0.05
 # Ratio of successive bounces used for the untraced ones at most (a white closed room would give 1).
 MAX_BOUNCE_RATIO = 0.95
+# Cycles' Filter Glossy (its default 1.0, which the authors' and the reference renders kept): on a path that
+# already bounced with direction pdf p < 1, every lobe is widened to alpha >= 0.5 sqrt(1 - FILTER_GLOSSY p).
+# A virtual light is such a vertex: seen from a gather point x, p is x's cosine pdf cos_x / pi; further back
+# along the light's path p is below 1 / pi, so the lights' own bounces take cos_x = 1 (`widened_alpha`).
+FILTER_GLOSSY = 1.0
+# Values per gather point: irradiance E (RGB), then the glossy term G (RGB) the point's lobe reflects to the eye.
+CHANNELS = 6
+# Rays per gather point that find the surfaces nearer than the clamp distance (bias compensation).
+NEAR_FIELD_RAYS = 8
 _SEED_STREAM = 0x1D1EC7  # separates the pattern's draws from every other use of the job seed
 
 
 class VirtualLights:
-    """The virtual point lights of one frame: positions (n, 3), normals (n, 3) facing the side lit,
-    outgoing flux (n, 3) watts per channel, and the interleaving group of each (n,)."""
+    """The virtual point lights of one frame: positions (n, 3), normals (n, 3) facing the side lit, unit
+    directions back to where their light came from (n, 3), the flux that arrived (n, 3) watts per channel,
+    that flux times the surface's albedo (n, 3), and the interleaving group of each (n,). A light shines
+    as its surface reflects what arrived: diffuse base and GGX lobe (material.py)."""
 
-    def __init__(self, positions: np.ndarray, normals: np.ndarray, flux: np.ndarray, groups: np.ndarray):
-        self.positions, self.normals, self.flux, self.groups = positions, normals, flux, groups
+    def __init__(self, positions: np.ndarray, normals: np.ndarray, incoming: np.ndarray, flux: np.ndarray,
+                 coloured_flux: np.ndarray, groups: np.ndarray):
+        self.positions, self.normals, self.incoming = positions, normals, incoming
+        self.flux, self.coloured_flux, self.groups = flux, coloured_flux, groups
 
 
 class IndirectGather:
@@ -73,14 +89,14 @@ class IndirectGather:
         self.mesh, self.colors, self.illumination = mesh, colors, illumination
         self.settings = illumination.indirect
         self.threads = max(1, threads)
-        tables = reflection_tables(illumination)
-        self._diffuse, self._albedo = tables.diffuse, tables.albedo
+        self.tables = reflection_tables(illumination)
+        self._seed, self._near_cache = seed, None
         rng = np.random.default_rng([seed, _SEED_STREAM])
         self.directions, self.ray_flux, self.ray_groups = spot_pattern(illumination, self.settings.virtual_lights,
                                                                        self.settings.interleave, rng)
-        # One pair of uniform numbers per light and further bounce (cosine-distributed directions).
+        # Three uniform numbers per light and further bounce: the lobe (diffuse or glossy), then its direction.
         self.traced = min(self.settings.bounces, self.settings.traced_bounces)
-        self._bounce_numbers = rng.random((max(0, self.traced - 1), len(self.directions), 2))
+        self._bounce_numbers = rng.random((max(0, self.traced - 1), len(self.directions), 3))
 
     # ------------------------------------------------------------------------------ lights
     def virtual_lights(self, camera_to_world: np.ndarray) -> VirtualLights:
@@ -88,21 +104,22 @@ class IndirectGather:
         rotation = np.asarray(camera_to_world, np.float64)[:3, :3]
         origins = np.repeat(np.asarray(camera_to_world, np.float32)[None, :3, 3], len(self.directions), 0)
         directions = (self.directions @ rotation.T).astype(np.float32)
-        flux = np.repeat(self.ray_flux[:, None], 3, 1).astype(np.float32)
+        flux = np.repeat(self.ray_flux[:, None], 3, 1)
         groups, pattern_index = self.ray_groups, np.arange(len(self.directions))
         camera = np.asarray(camera_to_world, np.float64)[:3, 3]
-        found: list[tuple[np.ndarray, ...]] = []
+        found: list[list[np.ndarray]] = []
         emitted = [np.full(3, self.ray_flux.sum())]  # RGB flux leaving the spot, then each bounce's lights
         for bounce in range(self.traced):
-            positions, normals, reflected, keep = self._land(origins, directions, flux)
-            positions, normals, flux = positions[keep], normals[keep], reflected[keep]
-            groups, pattern_index = groups[keep], pattern_index[keep]
-            found.append((positions, normals, flux, groups))
-            emitted.append(flux.sum(axis=0, dtype=np.float64))
+            positions, normals, incoming, rho, keep = self._land(origins, directions)
+            positions, normals, incoming, rho = positions[keep], normals[keep], incoming[keep], rho[keep]
+            flux, groups, pattern_index = flux[keep], groups[keep], pattern_index[keep]
+            found.append([positions, normals, incoming, flux, flux * rho, groups])
+            emitted.append(np.sum(flux * self._reflectance(normals, incoming, rho), axis=0))
             if bounce + 1 == self.traced:
                 break
             # Each light's path keeps its own numbers of the pattern, whichever other paths were lost.
-            directions = cosine_directions(normals, self._bounce_numbers[bounce][pattern_index]).astype(np.float32)
+            directions, weights = self._scatter(normals, incoming, rho, self._bounce_numbers[bounce][pattern_index])
+            flux = flux * weights
             lift = SURFACE_OFFSET * (1.0 + np.linalg.norm(positions - camera, axis=1, keepdims=True))
             origins = (positions + normals * lift).astype(np.float32)
         untraced = self.settings.bounces - self.traced
@@ -110,13 +127,15 @@ class IndirectGather:
             # Later bounces look like the last traced one, each r times as strong per channel (r < 1: light is
             # absorbed; per channel, because each bounce saturates the colour of the light further).
             ratio = np.minimum(emitted[-1] / np.maximum(emitted[-2], 1e-30), MAX_BOUNCE_RATIO)
-            series = sum(ratio**k for k in range(untraced + 1)).astype(np.float32)
-            found[-1] = (*found[-1][:2], found[-1][2] * series, found[-1][3])
-        return VirtualLights(*(np.ascontiguousarray(np.concatenate([part[k] for part in found])) for k in range(4)))
+            series = sum(ratio**k for k in range(untraced + 1))
+            found[-1][3], found[-1][4] = found[-1][3] * series, found[-1][4] * series
+        parts = [np.concatenate([part[k] for part in found]) for k in range(6)]
+        return VirtualLights(*(np.ascontiguousarray(part, np.float32) for part in parts[:5]), parts[5])
 
-    def _land(self, origins: np.ndarray, directions: np.ndarray, flux: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Where rays land: positions, normals facing the ray, the flux the surface reflects, and which hit."""
+    def _land(self, origins: np.ndarray, directions: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Where rays land: positions, normals facing the ray, unit directions back along the ray, the linear
+        albedo there (n, 3), and which rays hit."""
         count = len(origins)
         t, face = np.empty(count, np.float32), np.empty(count, np.int64)
         barycentric, normal = np.empty((count, 2), np.float32), np.empty((count, 3), np.float32)
@@ -126,64 +145,100 @@ class IndirectGather:
         positions = origins + directions * np.where(keep, t, 0.0)[:, None]
         facing = np.sum(normal * directions, axis=1)
         normal *= np.where(facing > 0, -1.0, 1.0)[:, None].astype(np.float32)  # the side the light came from
-        mu = np.abs(facing) / np.maximum(np.linalg.norm(directions, axis=1), 1e-12)
-        index = np.rint(np.clip(mu, 0.0, 1.0) * (TABLE_SIZE - 1)).astype(np.int64)
+        incoming = -directions / np.maximum(np.linalg.norm(directions, axis=1, keepdims=True), 1e-12)
         rho = np.zeros((count, 3), np.float32)
         rho[keep] = srgb_to_linear(self.colors.albedo_at(face[keep], barycentric[keep]) / 255.0)
-        # What the surface sends back out of the flux that landed: the diffuse base and the lobe's albedo.
-        reflectance = rho * self._diffuse[index][:, None] + self._albedo[index][:, None]
-        return positions.astype(np.float32), normal, (flux * reflectance).astype(np.float32), keep
+        return positions.astype(np.float32), normal, incoming.astype(np.float32), rho, keep
+
+    def _reflectance(self, normals: np.ndarray, incoming: np.ndarray, rho: np.ndarray) -> np.ndarray:
+        """(n, 3) fraction of the light arriving from `incoming` that a surface reflects (base and lobe)."""
+        lobe = self.tables.albedo[table_entries(np.sum(normals * incoming, axis=1))][:, None]
+        return rho * (1.0 - lobe) + lobe
+
+    def _scatter(self, normals: np.ndarray, incoming: np.ndarray, rho: np.ndarray, numbers: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """The next direction of each path (n, 3) and the factor (n, 3) of its flux, f cos / pdf: the lobe
+        is picked by numbers[:, 0] in proportion to what it reflects, then sampled (cosine or GGX)."""
+        tables = self.tables
+        alpha = float(widened_alpha(tables.alpha, 1.0))
+        lobe = tables.albedo[table_entries(np.sum(normals * incoming, axis=1))]
+        glossy_share = lobe / np.maximum(lobe + rho.mean(axis=1) * (1.0 - lobe), 1e-12)
+        glossy = numbers[:, 0] < glossy_share
+        directions = cosine_directions(normals, numbers[:, 1:])
+        half = ggx_half_vectors(normals, numbers[:, 1:], alpha)
+        cos_oh = np.sum(incoming * half, axis=1)
+        mirrored = 2.0 * cos_oh[:, None] * half - incoming
+        directions = np.where(glossy[:, None], mirrored, directions)
+        cos_o = np.sum(normals * directions, axis=1)
+        cos_i, cos_h = np.sum(normals * incoming, axis=1), np.sum(normals * half, axis=1)
+        energy = tables.energy[table_entries(cos_o)]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # GGX sampled by D cos_h: f cos_o / pdf = G2 F (w_o . h) / (mu_i cos_h).
+            glossy_weight = (smith_g2(cos_i, cos_o, alpha) * fresnel_dielectric(cos_oh, tables.ior) * cos_oh
+                             / (cos_i * cos_h) * energy / glossy_share)
+            glossy_weight = np.where(cos_o > 0, glossy_weight, 0.0)[:, None]
+            diffuse_weight = rho * (1.0 - tables.albedo[table_entries(cos_o)])[:, None] / (1.0 - glossy_share)[:, None]
+        weights = np.where(glossy[:, None], glossy_weight, diffuse_weight)
+        return directions.astype(np.float32), weights
 
     # ------------------------------------------------------------------------------ gather
     def irradiance_at(self, points: np.ndarray, normals: np.ndarray, camera_to_world: np.ndarray) -> np.ndarray:
-        """(n, 3) indirect irradiance (W/m^2) at surface points (n, 3) with unit normals (n, 3) facing the
-        side to light, from every virtual light of the spot at `camera_to_world` (no interleaving, no filter):
-        the estimator itself, for checks against analytic cases."""
+        """(n, 6) indirect light at surface points (n, 3) with unit normals (n, 3) facing the side to light,
+        from every virtual light of the spot at `camera_to_world` and the near field (no interleaving, no
+        filter): the irradiance E (W/m^2, RGB) and the glossy term G (RGB; the points' lobe reflects G / pi towards the camera): the
+        estimator itself, for checks against analytic cases."""
         lights = self.virtual_lights(camera_to_world)
         starts = np.array([0, len(lights.positions)], np.int64)
+        camera = np.asarray(camera_to_world, np.float32)[:3, 3]
+        eyes = camera - np.asarray(points, np.float32)
+        eyes /= np.linalg.norm(eyes, axis=1, keepdims=True)
         depth = np.ones((1, len(points)), np.float32)
-        shadow = _shadow_rays(np.asarray(points, np.float32)[None], np.asarray(normals, np.float32)[None], depth, 0, 1,
-                              lights.positions, lights.normals, lights.flux, starts,
-                              np.float32(self.settings.clamp_distance ** 2), np.float32(SURFACE_OFFSET))
-        cells, contributions, ray_origins, ray_directions = shadow
-        blocked = np.empty(len(cells), np.bool_)
-        self.mesh.occluded(ray_origins, ray_directions, np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
-        out = np.zeros((1, len(points), 3), np.float32)
-        _accumulate(cells, contributions, blocked, out)
+        out = np.zeros((1, len(points), CHANNELS), np.float32)
+        points, normals = np.asarray(points, np.float32)[None], np.asarray(normals, np.float32)[None]
+        self._gather(points, normals, eyes[None], depth, 0, 1, lights, starts, out)
+        numbers = self._near_numbers(1, points.shape[1])
+        self._near_field(points, normals, eyes[None], depth, numbers, camera_to_world, out)
         return out[0]
 
     def irradiance(self, hits: RayHits, camera_to_world: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """(ceil(H / INDIRECT_BLOCK), ceil(W / INDIRECT_BLOCK), 3) float32 indirect irradiance (W/m^2): one value per INDIRECT_BLOCK x INDIRECT_BLOCK
-        pixels, at the surface of the block's first pixel; 0 where that pixel hit nothing."""
+        """(ceil(H / INDIRECT_BLOCK), ceil(W / INDIRECT_BLOCK), 6) float32 indirect light: one value per
+        INDIRECT_BLOCK x INDIRECT_BLOCK pixels, at the surface of the block's first pixel, 0 where that pixel
+        hit nothing: irradiance E (W/m^2, RGB) and glossy term G (RGB), as `irradiance_at`."""
         lights = self.virtual_lights(camera_to_world)
         order = np.argsort(lights.groups, kind="stable")
         group_count = self.settings.interleave ** 2
         starts = np.searchsorted(lights.groups[order], np.arange(group_count + 1)).astype(np.int64)
-        positions, normals = lights.positions[order], lights.normals[order]
-        flux = lights.flux[order] * np.float32(group_count)  # each gather point sees one subset
+        # Each gather point sees one subset: its lights shine group_count times as bright.
+        lights = VirtualLights(lights.positions[order], lights.normals[order], lights.incoming[order],
+                               lights.flux[order] * np.float32(group_count),
+                               lights.coloured_flux[order] * np.float32(group_count), lights.groups[order])
         height, width = hits.depth.shape
         stride, interleave = self.settings.gather_stride, self.settings.interleave
         rows, columns = -(-height // stride), -(-width // stride)
         origin = np.asarray(camera_to_world, np.float32)[:3, 3].copy()
         points = np.zeros((rows, columns, 3), np.float32)
         point_normals = np.zeros((rows, columns, 3), np.float32)
+        eyes = np.zeros((rows, columns, 3), np.float32)
         point_depth = np.full((rows, columns), np.inf, np.float32)
-        _gather_points(hits.depth, hits.normal, hits.direction, origin, stride, points, point_normals, point_depth)
-        gathered = np.zeros((rows, columns, 3), np.float32)
-        clamp2 = np.float32(self.settings.clamp_distance ** 2)
+        _gather_points(hits.depth, hits.normal, hits.direction, origin, stride, points, point_normals, eyes,
+                       point_depth)
+        gathered = np.zeros((rows, columns, CHANNELS), np.float32)
+        numbers = self._near_numbers(rows, columns)
 
         def gather(band: slice) -> None:
-            shadow = _shadow_rays(points[band], point_normals[band], point_depth[band], band.start, interleave,
-                                  positions, normals, flux, starts, clamp2, np.float32(SURFACE_OFFSET))
-            cells, contributions, ray_origins, ray_directions = shadow
-            blocked = np.empty(len(cells), np.bool_)
-            self.mesh.occluded(ray_origins, ray_directions, np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
-            _accumulate(cells, contributions, blocked, gathered[band])
+            self._gather(points[band], point_normals[band], eyes[band], point_depth[band], band.start, interleave,
+                         lights, starts, gathered[band])
+            self._near_field(points[band], point_normals[band], eyes[band], point_depth[band], numbers[band],
+                             camera_to_world, gathered[band])
 
         self._run_bands(gather, rows)
-        combined = np.zeros_like(gathered)
-        _interleave_filter(gathered, points, point_normals, point_depth, interleave, combined)
-        out = np.empty((-(-height // INDIRECT_BLOCK), -(-width // INDIRECT_BLOCK), 3), np.float32) if out is None else out
+        # Twice: the first pass sums every subset once, the second smooths what few lights per subset leave
+        # (at 1024 lights per bounce: median PSNR 30.7 -> 31.3 dB against the reference).
+        combined, smoothed = np.zeros_like(gathered), np.zeros_like(gathered)
+        _interleave_filter(gathered, points, point_normals, point_depth, interleave, smoothed)
+        _interleave_filter(smoothed, points, point_normals, point_depth, interleave, combined)
+        out = (np.empty((-(-height // INDIRECT_BLOCK), -(-width // INDIRECT_BLOCK), CHANNELS), np.float32)
+               if out is None else out)
 
         def upsample(band: slice) -> None:
             _upsample(combined, points, point_normals, point_depth, hits.depth, hits.direction, hits.normal, origin,
@@ -191,6 +246,81 @@ class IndirectGather:
 
         self._run_bands(upsample, len(out))
         return out
+
+    def _near_field(self, points: np.ndarray, normals: np.ndarray, eyes: np.ndarray, depth: np.ndarray,
+                    numbers: np.ndarray, camera_to_world: np.ndarray, gathered: np.ndarray) -> None:
+        """Add to `gathered` the light the clamp of the virtual lights leaves out (Kollig and Keller's bias
+        compensation): K = NEAR_FIELD_RAYS cosine rays per gather point x (directions from `numbers`);
+        a surface y hit at r < clamp brings pi / K L_y (1 - r^2 / clamp^2), L_y being what y reflects towards
+        x (`_reflected_towards`)."""
+        cells = np.flatnonzero(np.isfinite(depth).ravel())
+        if len(cells) == 0:
+            return
+        rays, clamp = NEAR_FIELD_RAYS, self.settings.clamp_distance
+        x, n, eye = (np.repeat(a.reshape(-1, 3)[cells].astype(np.float64), rays, axis=0)
+                     for a in (points, normals, eyes))
+        directions = cosine_directions(n, numbers.reshape(-1, rays, 2)[cells].reshape(-1, 2))
+        camera = np.asarray(camera_to_world, np.float64)[:3, 3]
+        origins = x + n * (SURFACE_OFFSET * (1.0 + np.linalg.norm(x - camera, axis=1, keepdims=True)))
+        positions, surface_normals, towards_x, rho, hit = self._land(origins.astype(np.float32),
+                                                                    directions.astype(np.float32))
+        distance = np.linalg.norm(positions - origins, axis=1)
+        near = np.flatnonzero(hit & (distance < clamp))
+        owner = cells[near // rays]
+        irradiance = gathered.reshape(-1, CHANNELS)[owner, :3].astype(np.float64)
+        radiance = self._reflected_towards(positions[near], surface_normals[near], towards_x[near], rho[near],
+                                           np.sum(n[near] * directions[near], axis=1), irradiance, camera_to_world)
+        contribution = math.pi / rays * radiance * (1.0 - (distance[near] / clamp) ** 2)[:, None]
+        alpha = np.full(len(near), self.tables.alpha)
+        seen = math.pi * _lobe(n[near], directions[near], eye[near], alpha, self.tables)
+        flat = gathered.reshape(-1, CHANNELS)
+        np.add.at(flat, (owner, slice(0, 3)), contribution.astype(np.float32))
+        np.add.at(flat, (owner, slice(3, 6)), (contribution * seen[:, None]).astype(np.float32))
+
+    def _reflected_towards(self, y: np.ndarray, normals: np.ndarray, towards_x: np.ndarray, rho: np.ndarray,
+                           cos_at_x: np.ndarray, irradiance: np.ndarray, camera_to_world: np.ndarray) -> np.ndarray:
+        """(n, 3) radiance surfaces at y send towards x: the spot's direct light (one shadow ray to the camera)
+        through the base and the lobe (widened as Filter Glossy does after x's bounce at cos_at_x), and, as a
+        stand-in for y's own indirect light, x's `irradiance` through the base."""
+        camera = np.asarray(camera_to_world, np.float64)[:3, 3]
+        y, normals, towards_x = (a.astype(np.float64) for a in (y, normals, towards_x))
+        to_light = camera - y
+        distance = np.linalg.norm(to_light, axis=1)
+        to_light /= distance[:, None]
+        cos_light = np.sum(normals * to_light, axis=1)
+        off_axis = -np.sum(to_light * np.asarray(camera_to_world, np.float64)[:3, 2], axis=1)
+        spot = radiant_intensity(self.illumination) * cone_falloff(off_axis, self.illumination)
+        blocked = np.empty(len(y), np.bool_)
+        shadow_origins = (y + normals * (SURFACE_OFFSET * (1.0 + distance))[:, None]).astype(np.float32)
+        self.mesh.occluded(shadow_origins, (camera - shadow_origins).astype(np.float32),
+                           np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
+        direct = np.where(blocked, 0.0, spot * np.maximum(cos_light, 0.0) / distance**2)
+        base = self.tables.diffuse[table_entries(np.sum(normals * towards_x, axis=1))] / math.pi
+        lobe = _lobe(normals, to_light, towards_x, widened_alpha(self.tables.alpha, cos_at_x), self.tables)
+        return rho * base[:, None] * (direct[:, None] + irradiance) + (lobe * direct)[:, None]
+
+    def _near_numbers(self, rows: int, columns: int) -> np.ndarray:
+        """(rows, columns, NEAR_FIELD_RAYS, 2) uniform numbers of the near-field rays of a grid of gather
+        points, stratified per point (fixed per job and grid)."""
+        rays = NEAR_FIELD_RAYS
+        if self._near_cache is None or self._near_cache.shape[:2] != (rows, columns):
+            rng = np.random.default_rng([self._seed, _SEED_STREAM, 1])
+            strata = (np.arange(rays) + rng.random((rows, columns, rays))) / rays
+            self._near_cache = np.stack([strata, rng.random((rows, columns, rays))], axis=-1)
+        return self._near_cache
+
+    def _gather(self, points: np.ndarray, normals: np.ndarray, eyes: np.ndarray, depth: np.ndarray, row_offset: int,
+                interleave: int, lights: VirtualLights, starts: np.ndarray, out: np.ndarray) -> None:
+        """Add to `out` (rows, columns, 6) what the lights of each point's subset bring it past the shadow rays."""
+        tables = self.tables
+        shadow = _shadow_rays(points, normals, eyes, depth, row_offset, interleave, lights.positions, lights.normals,
+                              lights.incoming, lights.flux, lights.coloured_flux, starts,
+                              np.float32(self.settings.clamp_distance ** 2), np.float32(SURFACE_OFFSET),
+                              tables.diffuse, tables.energy, tables.alpha, tables.ior)
+        cells, contributions, ray_origins, ray_directions = shadow
+        blocked = np.empty(len(cells), np.bool_)
+        self.mesh.occluded(ray_origins, ray_directions, np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
+        _accumulate(cells, contributions, blocked, out)
 
     def _run_bands(self, work: Callable[[slice], None], rows: int) -> None:
         """`work` on bands of `rows` rows, on this gather's threads (inline with one thread)."""
@@ -226,10 +356,45 @@ def spot_pattern(illumination: Illumination, count: int, interleave: int, rng: n
     return directions, np.full(k * k, total_flux / (k * k)), groups
 
 
+@numba.njit(nogil=True, cache=True)
+def widened_alpha(alpha, cos_x):  # pragma: no cover (compiled)
+    """GGX alpha of a lobe after a cosine bounce at cos_x, as Cycles' Filter Glossy widens it (scalars or arrays)."""
+    return np.maximum(alpha, 0.5 * np.sqrt(np.maximum(0.0, 1.0 - FILTER_GLOSSY * cos_x / math.pi)))
+
+
+def _lobe(normals: np.ndarray, a: np.ndarray, b: np.ndarray, alpha: np.ndarray, tables: ReflectionTables
+          ) -> np.ndarray:
+    """(n,) the lobe f(a, b) / E_ss(cos_b) of surfaces of `normals` between unit directions a and b (n, 3)."""
+    half = a + b
+    half /= np.maximum(np.linalg.norm(half, axis=1, keepdims=True), 1e-12)
+    cos_a, cos_b = np.sum(normals * a, axis=1), np.sum(normals * b, axis=1)
+    cos_h, cos_bh = np.sum(normals * half, axis=1), np.sum(b * half, axis=1)
+    facing = (cos_a > 1e-6) & (cos_b > 1e-6) & (cos_h > 0) & (cos_bh > 0)
+    cos_a, cos_b, cos_bh = (np.maximum(c, 1e-6) for c in (cos_a, cos_b, cos_bh))
+    value = glossy_brdf(cos_h, cos_a, cos_b, cos_bh, alpha, tables.ior) * tables.energy[table_entries(cos_b)]
+    return np.where(facing, value, 0.0)
+
+
+def table_entries(mu: np.ndarray) -> np.ndarray:
+    """Entries of the material tables for cosines `mu` (clipped to [0, 1])."""
+    return np.rint(np.clip(mu, 0.0, 1.0) * (TABLE_SIZE - 1)).astype(np.int64)
+
+
 def cosine_directions(normals: np.ndarray, numbers: np.ndarray) -> np.ndarray:
     """Unit directions (n, 3) distributed as cos(theta) about `normals`, from uniform `numbers` (n, 2)."""
-    radius, phi = np.sqrt(numbers[:, 0]), 2.0 * math.pi * numbers[:, 1]
-    local = np.stack([radius * np.cos(phi), radius * np.sin(phi), np.sqrt(np.maximum(0.0, 1.0 - numbers[:, 0]))], 1)
+    return _about_normals(np.sqrt(np.maximum(0.0, 1.0 - numbers[:, 0])), numbers[:, 1], normals)
+
+
+def ggx_half_vectors(normals: np.ndarray, numbers: np.ndarray, alpha: float) -> np.ndarray:
+    """Unit half vectors (n, 3) distributed as D(h) cos(theta_h) of GGX about `normals`, from `numbers` (n, 2)."""
+    u = numbers[:, 0]
+    return _about_normals(np.sqrt((1.0 - u) / (1.0 + (alpha * alpha - 1.0) * u)), numbers[:, 1], normals)
+
+
+def _about_normals(cos_theta: np.ndarray, turn: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Unit directions at cos_theta (n,) to `normals` (n, 3), at azimuth 2 pi turn (n,) about them."""
+    radius, phi = np.sqrt(np.maximum(0.0, 1.0 - cos_theta**2)), 2.0 * math.pi * turn
+    local = np.stack([radius * np.cos(phi), radius * np.sin(phi), cos_theta], 1)
     normals = normals.astype(np.float64)
     helper = np.where(np.abs(normals[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
     tangent = np.cross(helper, normals)
@@ -239,8 +404,10 @@ def cosine_directions(normals: np.ndarray, numbers: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(nogil=True, cache=True)
-def _gather_points(depth, normal, direction, origin, stride, points, point_normals, point_depth):  # pragma: no cover
-    """The surface under the centre pixel of each stride x stride cell: position, normal facing the camera, depth."""
+def _gather_points(depth, normal, direction, origin, stride, points, point_normals, eyes,
+                   point_depth):  # pragma: no cover (compiled)
+    """The surface under the centre pixel of each stride x stride cell: position, normal facing the camera, unit
+    direction to the camera, depth."""
     height, width = depth.shape
     for i in range(points.shape[0]):
         row = min(i * stride + stride // 2, height - 1)
@@ -254,27 +421,55 @@ def _gather_points(depth, normal, direction, origin, stride, points, point_norma
                 points[i, k, axis] = origin[axis] + z * direction[row, column, axis]
                 facing += normal[row, column, axis] * direction[row, column, axis]
             sign = np.float32(-1.0) if facing > 0 else np.float32(1.0)
+            ray = direction[row, column]
+            length = np.sqrt(ray[0] * ray[0] + ray[1] * ray[1] + ray[2] * ray[2])
             for axis in range(3):
                 point_normals[i, k, axis] = sign * normal[row, column, axis]
+                eyes[i, k, axis] = -direction[row, column, axis] / length
             point_depth[i, k] = z
 
 
+@numba.njit(nogil=True, cache=True, inline="always")
+def _entry(mu):  # pragma: no cover (compiled)
+    """The material tables' entry of a cosine in [0, 1]."""
+    return np.int32(min(mu, np.float32(1.0)) * np.float32(TABLE_SIZE - 1) + np.float32(0.5))
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _glossy(nx, ny, nz, ax, ay, az, bx, by, bz, cos_a, cos_b, energy, alpha, ior):  # pragma: no cover (compiled)
+    """The lobe f(a, b) / E_ss(cos_b) of a surface of normal n between unit directions a and b (0 for IOR 1)."""
+    if ior == 1.0:
+        return np.float32(0.0)
+    hx, hy, hz = ax + bx, ay + by, az + bz
+    length = np.sqrt(hx * hx + hy * hy + hz * hz)
+    if length <= np.float32(1e-6):
+        return np.float32(0.0)
+    cos_h = (nx * hx + ny * hy + nz * hz) / length
+    cos_bh = (bx * hx + by * hy + bz * hz) / length
+    if cos_h <= 0 or cos_bh <= 0:
+        return np.float32(0.0)
+    return np.float32(glossy_brdf(cos_h, cos_a, cos_b, cos_bh, alpha, ior)) * energy[_entry(cos_b)]
+
+
 @numba.njit(nogil=True, cache=True)
-def _shadow_rays(points, point_normals, point_depth, row_offset, interleave, positions, normals, flux, starts,
-                 clamp2, offset):  # pragma: no cover (compiled)
+def _shadow_rays(points, point_normals, eyes, point_depth, row_offset, interleave, positions, normals, incoming, flux,
+                 coloured_flux, starts, clamp2, offset, base, energy, alpha, ior):  # pragma: no cover
     """Every (gather point, light of its subset) pair that faces each other: the cell, the unshadowed
-    irradiance (RGB) and the shadow ray (origin off the surface, direction to the light: t in [0, 1))."""
+    contribution (irradiance RGB, glossy term RGB) and the shadow ray (origin off the surface, direction to
+    the light: t in [0, 1)). A light at y lit from w_i sends the point x the irradiance
+    Phi f_y(w_i, y->x) cos_y cos_x / max(r^2, clamp^2), f = base rho / pi + lobe (material.py); x's own lobe
+    reflects pi f_x(x->y, x->eye) times that towards the eye (the glossy term)."""
     rows, columns = point_depth.shape
     largest = 0
     for group in range(len(starts) - 1):
         largest = max(largest, starts[group + 1] - starts[group])
     most = rows * columns * largest
     cells = np.empty(most, np.int64)
-    contributions = np.empty((most, 3), np.float32)
+    contributions = np.empty((most, CHANNELS), np.float32)
     origins = np.empty((most, 3), np.float32)
     directions = np.empty((most, 3), np.float32)
     n = 0
-    inverse_pi = np.float32(1.0 / math.pi)
+    inverse_pi, pi = np.float32(1.0 / math.pi), np.float32(math.pi)
     for i in range(rows):
         for k in range(columns):
             z = point_depth[i, k]
@@ -282,25 +477,39 @@ def _shadow_rays(points, point_normals, point_depth, row_offset, interleave, pos
                 continue
             group = ((i + row_offset) % interleave) * interleave + k % interleave
             lift = offset * (np.float32(1.0) + z)
-            px = points[i, k, 0] + point_normals[i, k, 0] * lift
-            py = points[i, k, 1] + point_normals[i, k, 1] * lift
-            pz = points[i, k, 2] + point_normals[i, k, 2] * lift
+            nx, ny, nz = point_normals[i, k, 0], point_normals[i, k, 1], point_normals[i, k, 2]
+            ex, ey, ez = eyes[i, k, 0], eyes[i, k, 1], eyes[i, k, 2]
+            cos_eye = nx * ex + ny * ey + nz * ez
+            px, py, pz = points[i, k, 0] + nx * lift, points[i, k, 1] + ny * lift, points[i, k, 2] + nz * lift
             for j in range(starts[group], starts[group + 1]):
                 dx, dy, dz = positions[j, 0] - px, positions[j, 1] - py, positions[j, 2] - pz
                 r2 = dx * dx + dy * dy + dz * dz
                 if r2 <= np.float32(0.0):
                     continue
-                cos_x = point_normals[i, k, 0] * dx + point_normals[i, k, 1] * dy + point_normals[i, k, 2] * dz
-                cos_j = -(normals[j, 0] * dx + normals[j, 1] * dy + normals[j, 2] * dz)
+                r = np.sqrt(r2)
+                dx, dy, dz = dx / r, dy / r, dz / r
+                cos_x = nx * dx + ny * dy + nz * dz
+                mx, my, mz = normals[j, 0], normals[j, 1], normals[j, 2]
+                cos_j = -(mx * dx + my * dy + mz * dz)
                 if cos_x <= 0 or cos_j <= 0:
                     continue
-                # cos_x cos_j / r^2 with both cosines unnormalised: divide by r^2 once more.
-                geometry = cos_x * cos_j / r2 / max(r2, clamp2) * inverse_pi
+                geometry = cos_x * cos_j / max(r2, clamp2)
+                wx, wy, wz = incoming[j, 0], incoming[j, 1], incoming[j, 2]
+                cos_in = mx * wx + my * wy + mz * wz
+                lobe, seen = 0.0, 0.0
+                if cos_in > 0:
+                    widened = widened_alpha(alpha, cos_x)
+                    lobe = _glossy(mx, my, mz, wx, wy, wz, -dx, -dy, -dz, cos_in, cos_j, energy, widened, ior)
+                if cos_eye > 0:
+                    seen = pi * _glossy(nx, ny, nz, dx, dy, dz, ex, ey, ez, cos_x, cos_eye, energy, alpha, ior)
+                diffuse = base[_entry(cos_j)] * inverse_pi
                 cells[n] = i * columns + k
                 for c in range(3):
-                    contributions[n, c] = flux[j, c] * geometry
+                    received = (coloured_flux[j, c] * diffuse + flux[j, c] * lobe) * geometry
+                    contributions[n, c] = received
+                    contributions[n, 3 + c] = received * seen
                 origins[n, 0], origins[n, 1], origins[n, 2] = px, py, pz
-                directions[n, 0], directions[n, 1], directions[n, 2] = dx, dy, dz
+                directions[n, 0], directions[n, 1], directions[n, 2] = dx * r, dy * r, dz * r
                 n += 1
     return cells[:n], contributions[:n], origins[:n], directions[:n]
 
@@ -308,12 +517,12 @@ def _shadow_rays(points, point_normals, point_depth, row_offset, interleave, pos
 @numba.njit(nogil=True, cache=True)
 def _accumulate(cells, contributions, blocked, gathered):  # pragma: no cover (compiled)
     """Sum the unshadowed contributions per gather point, in ray order (deterministic)."""
-    columns = gathered.shape[1]
+    columns, channels = gathered.shape[1], gathered.shape[2]
     for n in range(len(cells)):
         if blocked[n]:
             continue
         i, k = cells[n] // columns, cells[n] % columns
-        for c in range(3):
+        for c in range(channels):
             gathered[i, k, c] += contributions[n, c]
 
 
@@ -350,7 +559,7 @@ def _interleave_filter(gathered, points, point_normals, point_depth, interleave,
             px, py, pz = points[i, k, 0], points[i, k, 1], points[i, k, 2]
             nx, ny, nz = point_normals[i, k, 0], point_normals[i, k, 1], point_normals[i, k, 2]
             total = np.float32(0.0)
-            sums = np.zeros(3, np.float32)
+            sums = np.zeros(CHANNELS, np.float32)
             # Shift the block inside the grid at its borders, so it still holds every subset once.
             top = min(max(i + low, 0), max(rows - interleave, 0))
             left = min(max(k + low, 0), max(columns - interleave, 0))
@@ -358,10 +567,10 @@ def _interleave_filter(gathered, points, point_normals, point_depth, interleave,
                 for b in range(left, min(left + interleave, columns)):
                     w = _similarity(px, py, pz, nx, ny, nz, depth, points, point_normals, point_depth, a, b)
                     total += w
-                    for c in range(3):
+                    for c in range(CHANNELS):
                         sums[c] += w * gathered[a, b, c]
             if total > 0:
-                for c in range(3):
+                for c in range(CHANNELS):
                     out[i, k, c] = sums[c] / total
 
 
@@ -370,8 +579,8 @@ def _upsample(combined, points, point_normals, point_depth, depth, direction, no
               out):  # pragma: no cover (compiled)
     """Blocks of rows block_start.. (out holds those rows; block (R, C) is the surface of pixel (INDIRECT_BLOCK R,
     INDIRECT_BLOCK C)): the bilinear mix of the four nearest gather points, each weighted by geometric similarity;
-    where none is alike (a surface smaller than a cell), the most similar of the 4 x 4 points around, or
-    black when none is on a surface facing the same way."""
+    where none is alike (a surface smaller than a cell), the most similar of the 4 x 4 points around, else the
+    one of them facing the most alike, or black when all face away."""
     height, width = out.shape[0], out.shape[1]
     rows, columns = point_depth.shape
     half = np.float32(stride // 2)
@@ -384,7 +593,7 @@ def _upsample(combined, points, point_normals, point_depth, depth, direction, no
         fi = min(max(gi - np.float32(i0), np.float32(0.0)), one)
         for block_column in range(width):
             column = block_column * INDIRECT_BLOCK
-            out[local_row, block_column, 0] = out[local_row, block_column, 1] = out[local_row, block_column, 2] = 0.0
+            out[local_row, block_column] = 0.0
             z = depth[row, column]
             if not np.isfinite(z):
                 continue
@@ -405,16 +614,24 @@ def _upsample(combined, points, point_normals, point_depth, depth, direction, no
             w11 = fi * fk * _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i1, k1)
             total = w00 + w01 + w10 + w11
             if total > np.float32(1e-6):
-                for c in range(3):
+                for c in range(CHANNELS):
                     out[local_row, block_column, c] = (w00 * combined[i0, k0, c] + w01 * combined[i0, k1, c]
                                                  + w10 * combined[i1, k0, c] + w11 * combined[i1, k1, c]) / total
                 continue
+            # No neighbour on this surface (a thin frame, an edge, a small object): the most similar of the
+            # 4 x 4 around; failing that, the one whose surface faces the most alike (on another plane).
             best, best_a, best_b = np.float32(0.0), -1, -1
+            facing_best, facing_a, facing_b = np.float32(0.0), -1, -1
             for a in range(max(i0 - 1, 0), min(i0 + 3, rows)):
                 for b in range(max(k0 - 1, 0), min(k0 + 3, columns)):
                     w = _similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, a, b)
                     if w > best:
                         best, best_a, best_b = w, a, b
+                    cosine = nx * point_normals[a, b, 0] + ny * point_normals[a, b, 1] + nz * point_normals[a, b, 2]
+                    if np.isfinite(point_depth[a, b]) and cosine > facing_best:
+                        facing_best, facing_a, facing_b = cosine, a, b
+            if best_a < 0:
+                best_a, best_b = facing_a, facing_b
             if best_a >= 0:
-                for c in range(3):
+                for c in range(CHANNELS):
                     out[local_row, block_column, c] = combined[best_a, best_b, c]

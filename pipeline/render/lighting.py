@@ -191,12 +191,12 @@ class Shader:
         self.tables = reflection_tables(illumination)
         # Indirect irradiance (W/m^2) -> the same units as the direct term: exposure * steps / pi.
         self.indirect_scale = np.float32(exposure * self._encode_steps / math.pi)
-        self._material = (self.tables.diffuse, self.tables.specular, self.tables.albedo)
+        self._material = (self.tables.diffuse, self.tables.specular)
 
     def shade(self, albedo: np.ndarray, hits: RayHits, indirect: np.ndarray | None = None) -> np.ndarray:
         """(H, W, 3) uint8 frame from (3, H, W) albedo planes. Ambient is the albedo; spot applies the
-        model of schemas/render.md, plus `indirect` irradiance W/m^2 of the whole frame when given, one
-        value per indirect.INDIRECT_BLOCK x INDIRECT_BLOCK pixels (IndirectGather.irradiance)."""
+        model of schemas/render.md, plus `indirect` light of the whole frame when given, one value per
+        INDIRECT_BLOCK x INDIRECT_BLOCK pixels (IndirectGather.irradiance: irradiance and glossy term)."""
         if self.illumination.kind == "ambient":
             return interleave(albedo)
         return _shade(hits, planes=albedo, scale_steps=self._spot_scale_steps, decode=self._decode, encode=self._encode,
@@ -219,7 +219,7 @@ class Shader:
                       material=self._lit_material() if spot else None, indirect=indirect if spot else None,
                       indirect_scale=self.indirect_scale, first_row=self.first_row)
 
-    def _lit_material(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    def _lit_material(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The principled tables, or None for a diffuse surface (its frames keep today's exact arithmetic)."""
         return self._material if self.illumination.material == "principled" else None
 
@@ -229,24 +229,25 @@ class Shader:
 # compiled once per process (the arrays' types, not their sizes, pick the compiled version).
 _NO_RECORDS, _NO_PLANES = np.zeros((1, 16), np.uint8), np.zeros((3, 1, 1), np.uint8)
 _NO_SCALE, _NO_DECODE, _NO_ENCODE = np.zeros((1, 1), np.float32), np.zeros(1, np.float32), np.zeros(1, np.uint8)
-_NO_TABLE, _NO_INDIRECT = np.zeros(1, np.float32), np.zeros((1, 1, 3), np.float32)
+_NO_TABLE, _NO_INDIRECT = np.zeros(1, np.float32), np.zeros((1, 1, 6), np.float32)
 
 
 def _shade(hits: RayHits, records: np.ndarray | None = None, planes: np.ndarray | None = None,
            interpolate: bool = False, scale_steps: np.ndarray | None = None, decode: np.ndarray = _NO_DECODE,
            encode: np.ndarray = _NO_ENCODE, out: np.ndarray | None = None,
-           material: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+           material: tuple[np.ndarray, np.ndarray] | None = None,
            indirect: np.ndarray | None = None, indirect_scale: float = 1.0, first_row: int = 0) -> np.ndarray:
     """(H, W, 3) uint8 frame (into `out` when given): albedo from per-face `records` or from `planes`, lit
     by the spot model when `scale_steps` is given (with `decode` and `encode`), else the albedo itself;
-    `material` = the principled (diffuse, specular, albedo) tables; `indirect` irradiance of the whole frame
-    per INDIRECT_BLOCK x INDIRECT_BLOCK pixels, times `indirect_scale` in encoder steps; `first_row`: frame row of hits' row 0."""
+    `material` = the principled (diffuse, specular) tables; `indirect` irradiance and glossy term (RGB each) of
+    the whole frame per INDIRECT_BLOCK x INDIRECT_BLOCK pixels, times `indirect_scale` in encoder steps;
+    `first_row`: frame row of hits' row 0."""
     out = np.empty((*hits.depth.shape, 3), np.uint8) if out is None else out
-    diffuse, specular, albedo = material if material is not None else (_NO_TABLE, _NO_TABLE, _NO_TABLE)
+    diffuse, specular = material if material is not None else (_NO_TABLE, _NO_TABLE)
     _shade_pixels(_NO_RECORDS if records is None else records, _NO_PLANES if planes is None else planes,
                   records is not None, interpolate, scale_steps is not None, hits.face, hits.barycentric,
                   hits.normal, hits.direction, hits.depth, _NO_SCALE if scale_steps is None else scale_steps,
-                  decode, encode, out, material is not None, diffuse, specular, albedo,
+                  decode, encode, out, material is not None, diffuse, specular,
                   indirect is not None, _NO_INDIRECT if indirect is None else indirect, np.float32(indirect_scale),
                   first_row, INDIRECT_BLOCK)
     return out
@@ -254,7 +255,7 @@ def _shade(hits: RayHits, records: np.ndarray | None = None, planes: np.ndarray 
 
 @numba.njit(nogil=True)
 def _shade_pixels(records, planes, from_records, interpolate, spot, face, barycentric, normal, direction, depth,
-                  scale_steps, decode, encode, out, principled, diffuse_table, specular_table, albedo_table,
+                  scale_steps, decode, encode, out, principled, diffuse_table, specular_table,
                   lit_indirectly, indirect, indirect_scale, first_row, block):  # pragma: no cover (compiled)
     """Every pixel in float32 with a fixed order of operations (no fast-math), so runs are bit-identical:
 
@@ -265,10 +266,10 @@ def _shade_pixels(records, planes, from_records, interpolate, spot, face, baryce
             z = inf and n = 0, so it is black. The steps are a power of two: folding them in rounds
             exactly like scaling the clipped linear value afterwards.
             out = encode[trunc(clip(decode[a] s, 0, steps) + 0.5)]
-    principled / indirect (material.py; m = table entry of mu = |n . ray| / |ray|, i = indirect irradiance
-            of the pixel's block times indirect_scale: the same units as s):
-            out = encode[trunc(clip(decode[a] (s + i) diffuse[m] + s specular[m] + i albedo[m], 0, steps) + 0.5)]
-            (a diffuse surface: diffuse = 1, specular = albedo = 0)
+    principled / indirect (material.py; m = table entry of mu = |n . ray| / |ray|, i and g = indirect
+            irradiance and glossy term of the pixel's block times indirect_scale: the same units as s):
+            out = encode[trunc(clip(decode[a] (s + i) diffuse[m] + s specular[m] + g, 0, steps) + 0.5)]
+            (a diffuse surface: diffuse = 1, specular = g = 0)
     """
     height, width = face.shape
     steps = np.float32(len(encode) - 1)
@@ -278,7 +279,7 @@ def _shade_pixels(records, planes, from_records, interpolate, spot, face, baryce
         for column in range(width):
             f = face[row, column]
             light = np.float32(0.0)
-            base, gloss, bounced = np.float32(1.0), np.float32(0.0), np.float32(0.0)
+            base, gloss = np.float32(1.0), np.float32(0.0)
             if spot:
                 facing = normal[row, column, 0] * direction[row, column, 0]
                 facing += normal[row, column, 1] * direction[row, column, 1]
@@ -291,7 +292,7 @@ def _shade_pixels(records, planes, from_records, interpolate, spot, face, baryce
                     length += direction[row, column, 1] * direction[row, column, 1]
                     length += direction[row, column, 2] * direction[row, column, 2]
                     entry = np.int32(min(abs(facing) / np.sqrt(length), np.float32(1.0)) * last_entry + half)
-                    base, gloss, bounced = diffuse_table[entry], specular_table[entry], albedo_table[entry]
+                    base, gloss = diffuse_table[entry], specular_table[entry]
             u, v = barycentric[row, column, 0], barycentric[row, column, 1]
             for channel in range(3):
                 if not from_records:
@@ -305,10 +306,12 @@ def _shade_pixels(records, planes, from_records, interpolate, spot, face, baryce
                 else:
                     albedo = records[f, channel]
                 if spot and (principled or lit_indirectly):
-                    received = np.float32(0.0)
+                    received, glossy = np.float32(0.0), np.float32(0.0)
                     if lit_indirectly:
-                        received = indirect[(first_row + row) // block, column // block, channel] * indirect_scale
-                    linear = decode[albedo] * (light + received) * base + light * gloss + received * bounced
+                        block_row, block_column = (first_row + row) // block, column // block
+                        received = indirect[block_row, block_column, channel] * indirect_scale
+                        glossy = indirect[block_row, block_column, 3 + channel] * indirect_scale
+                    linear = decode[albedo] * (light + received) * base + light * gloss + glossy
                     out[row, column, channel] = encode[np.int32(min(max(linear, low), steps) + half)]
                 elif spot:
                     linear = min(max(decode[albedo] * light, low), steps) + half

@@ -9,14 +9,15 @@ with Fresnel for the view direction (Cycles' albedo scaling of layered closures)
 
 The light sits at the eye, so light and view directions coincide: the half vector is the view vector,
 v.h = 1 and the Fresnel term is F0 for every pixel. What the spot adds to a pixel then depends on one
-number, mu = cos(incidence), and three tables of mu (`ReflectionTables`) serve every frame:
+number, mu = cos(incidence), and tables of mu (`ReflectionTables`) serve every frame:
 
     L_direct   = E_direct / pi * (rho * diffuse(mu) + specular(mu))
     diffuse    = 1 - A(mu)                            (1 for `diffuse`)
     specular   = pi * D(mu) G2(mu, mu) F0 / (4 mu^2) / E_ss(mu)     (0 for `diffuse`)
 
-Indirect light arrives from every direction; the pixel reflects it as a uniform field would be reflected,
-L_indirect = E_indirect / pi * (rho * diffuse(mu) + A(mu)) (`albedo` below, 0 for `diffuse`).
+Bounced light arrives from other directions than the eye, so it meets the full lobe, f(w_i, w_o) =
+rho (1 - A(mu_o)) / pi + D(h) G2 F(w_o . h) / (4 mu_i mu_o) / E_ss(mu_o) (`glossy_brdf` and the tables'
+`energy` = 1 / E_ss; w_o is the direction the light leaves towards, as Cycles weighs by the view side).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import functools
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from pipeline.config import Illumination
@@ -36,11 +38,15 @@ _QUADRATURE = 192  # incoming directions per axis when integrating the lobe's al
 @dataclass(frozen=True)
 class ReflectionTables:
     """float32 (TABLE_SIZE,) tables over mu = cos(incidence): weights of the diffuse base and the specular
-    lobe under the coincident spot, and the lobe's albedo (what it reflects of uniform incident light)."""
+    lobe under the coincident spot, the lobe's albedo (what it reflects of uniform incident light) and its
+    energy compensation 1 / E_ss; the lobe's GGX alpha and IOR (IOR 1 reflects nothing: `diffuse`)."""
 
     diffuse: np.ndarray
     specular: np.ndarray
     albedo: np.ndarray
+    energy: np.ndarray
+    alpha: float = 1.0
+    ior: float = 1.0
 
 
 def reflection_tables(illumination: Illumination) -> ReflectionTables:
@@ -52,8 +58,8 @@ def reflection_tables(illumination: Illumination) -> ReflectionTables:
 
 @functools.cache
 def _diffuse_tables() -> ReflectionTables:
-    ones = np.ones(TABLE_SIZE, np.float32)
-    return ReflectionTables(ones, np.zeros(TABLE_SIZE, np.float32), np.zeros(TABLE_SIZE, np.float32))
+    ones, zeros = np.ones(TABLE_SIZE, np.float32), np.zeros(TABLE_SIZE, np.float32)
+    return ReflectionTables(ones, zeros, zeros, ones)
 
 
 @functools.cache
@@ -72,7 +78,7 @@ def _principled_tables(specular: float, roughness: float) -> ReflectionTables:
     lobe[0] = 0.0  # mu = 0: a grazing hit (or a miss, whose light is 0 anyway) shows no highlight
     return ReflectionTables(diffuse=(1.0 - albedo).astype(np.float32),
                             specular=(math.pi * lobe * energy).astype(np.float32),
-                            albedo=albedo.astype(np.float32))
+                            albedo=albedo.astype(np.float32), energy=energy.astype(np.float32), alpha=alpha, ior=ior)
 
 
 def ggx_distribution(cos_h: np.ndarray, alpha: float) -> np.ndarray:
@@ -122,3 +128,20 @@ def lobe_albedos(mu: np.ndarray, alpha: float, ior: float) -> tuple[np.ndarray, 
         single[k] = np.sum(brdf) * weight
         fresnel[k] = np.sum(brdf * fresnel_dielectric(np.sum(h * wo, -1), ior)) * weight
     return single, fresnel
+
+
+@numba.njit(nogil=True, cache=True)
+def glossy_brdf(cos_h, cos_i, cos_o, cos_oh, alpha, ior):  # pragma: no cover (compiled)
+    """The single-scattering GGX lobe D G2 F / (4 mu_i mu_o) for unit directions at cosines cos_i, cos_o to
+    the normal, cos_h between normal and half vector, cos_oh between w_o and the half vector (scalars or
+    arrays alike: the compiled gather calls it per pair, numpy code on whole arrays)."""
+    a2 = alpha * alpha
+    d = cos_h * cos_h * (a2 - 1.0) + 1.0
+    distribution = a2 / (math.pi * d * d)
+    lambda_i = 0.5 * (np.sqrt(1.0 + a2 * (1.0 / (cos_i * cos_i) - 1.0)) - 1.0)
+    lambda_o = 0.5 * (np.sqrt(1.0 + a2 * (1.0 / (cos_o * cos_o) - 1.0)) - 1.0)
+    g = np.sqrt(np.maximum(ior * ior - 1.0 + cos_oh * cos_oh, 0.0))
+    a = (g - cos_oh) / (g + cos_oh)
+    b = (cos_oh * (g + cos_oh) - 1.0) / (cos_oh * (g - cos_oh) + 1.0)
+    fresnel = 0.5 * a * a * (1.0 + b * b)
+    return distribution * fresnel / ((1.0 + lambda_i + lambda_o) * 4.0 * cos_i * cos_o)
