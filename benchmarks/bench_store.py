@@ -211,6 +211,12 @@ def spread(values: list[float]) -> dict:
             "max_s": round(max(values), 3), "runs": [round(v, 3) for v in values]}
 
 
+def paired(times: dict[str, list[float]]) -> float:
+    """Median of after/before within each round (the two ran back to back, so a drift of the load between
+    rounds cancels out)."""
+    return round(statistics.median(a / b for a, b in zip(times["after"], times["before"])), 3)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--before", type=Path, required=True, help="a checkout of the code before pipeline/store/")
@@ -270,10 +276,12 @@ def main() -> None:
             ratio = statistics.median(wall["after"]) / statistics.median(wall["before"])
             cpu_ratio = statistics.median(used["after"]) / statistics.median(used["before"])
             result["speed"][command] = {"before": spread(wall["before"]), "after": spread(wall["after"]),
-                                        "after_over_before": round(ratio, 3), "cpu_before": spread(used["before"]),
+                                        "after_over_before": round(ratio, 3), "paired": paired(wall),
+                                        "cpu_before": spread(used["before"]),
                                         "cpu_after": spread(used["after"]), "cpu_after_over_before": round(cpu_ratio, 3)}
             print(f"{command}: before {statistics.median(wall['before']):.2f} s, after "
-                  f"{statistics.median(wall['after']):.2f} s (after/before {ratio:.2f}; CPU {cpu_ratio:.2f})", flush=True)
+                  f"{statistics.median(wall['after']):.2f} s (after/before {ratio:.2f}, paired by round "
+                  f"{paired(wall):.2f}; CPU {cpu_ratio:.2f})", flush=True)
     result["crashes"] = CRASHES
     RESULTS.write_text(json.dumps(result, indent=1) + "\n")
     print(f"wrote {RESULTS}")
