@@ -9,6 +9,8 @@ from importlib.abc import Loader
 from importlib.machinery import ModuleSpec
 from types import ModuleType
 
+from pipeline.errors import error_text
+
 # The apt package of each system library our native modules load (deploy/setup.sh's SYSTEM_PACKAGES), by
 # the library's name up to `.so`: open3d loads libusb at import, and needs OpenMP and libGL.
 APT_PACKAGES = {"libusb-1.0.so": "libusb-1.0-0", "libgomp.so": "libgomp1", "libGL.so": "libgl1",
@@ -43,7 +45,7 @@ def lazy_module(name: str) -> ModuleType:
 
 def load_failure_line(name: str, error: BaseException) -> str:
     """One line for module `name` failing to import with `error`: the missing library's apt package, or the error."""
-    text = " ".join(str(error).split()) or type(error).__name__
+    text = error_text(error, None)
     missing = _MISSING_LIBRARY.search(text)
     if missing is None:
         return f"{name} cannot be imported ({type(error).__name__}: {text}); run `make setup` to reinstall it"

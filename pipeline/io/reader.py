@@ -164,11 +164,9 @@ def video_locations(run: Any) -> dict[tuple[str, str], str]:
     """(embodiment, video_name) -> where each video's Zarr store is read: on local disk its `store_path`
     in the run; on object storage its URL, from the markers of the stages that wrote videos (the `keys`
     of its files; no listing of the bucket)."""
-    from pipeline.store.datasets import read_dataset
-
     run = as_run(run)
     if run.store is None:
-        table = read_dataset(run, "videos", warn=False).select(["embodiment", "video_name", "store_path"]).to_pylist()
+        table = run.read("videos", warn=False).select(["embodiment", "video_name", "store_path"]).to_pylist()
         return {(r["embodiment"], r["video_name"]): str(run.root / r["store_path"]) for r in table}
     found = {}
     for stage in run.stages_writing("videos"):

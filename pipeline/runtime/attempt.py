@@ -13,6 +13,7 @@ import time
 import traceback
 from pathlib import Path
 
+from pipeline.errors import error_text
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 from pipeline.runtime.status import UnitOutcome
 from pipeline.store.failures import failure_line, is_no_space
@@ -55,7 +56,7 @@ def execute_unit(stage: Stage, run: RunFolder, unit: Unit, attempt: int) -> Unit
         logger.error("failed: %s\n%s", error, traceback.format_exc())
         # A full disk is said with the path and the free space (the status table keeps it as the reason).
         message = (failure_line(error, str(run.root)) if is_no_space(error)
-                   else " ".join(str(error).split()) or type(error).__name__)
+                   else error_text(error, None))
         return UnitOutcome(stage.name, unit.id, "failed", attempt, type(error).__name__, message, relative_log,
                            time.perf_counter() - started)
     finally:

@@ -37,7 +37,7 @@ from pipeline.store.marker_index import FsspecMarkerFolder, LocalMarkerFolder, M
 from pipeline.store.markers import Damage, Marker, OutputFile, file_checksum, marker_text, parse_marker
 from pipeline.store.names import (ATTEMPTS, DATASET_INDEX, JOB_FILE, STATE, atomic_write_text, is_plain_name,
                                   is_run_path)
-from pipeline.store.remote import RunStore, attempt_id
+from pipeline.store.remote import RunStore, StoreError, attempt_id
 
 log = logging.getLogger(__name__)
 
@@ -63,7 +63,11 @@ def _noted_damage(marker: Marker, note: Any, where: str) -> list[Damage]:
             return []
         return [Damage(**p) for p in note["problems"]]
     except (TypeError, KeyError):
-        return [Damage(marker.stage, marker.unit, where, "is an unreadable damage note")]
+        return _unreadable_note(marker, where)
+
+
+def _unreadable_note(marker: Marker, where: str) -> list[Damage]:
+    return [Damage(marker.stage, marker.unit, where, "is an unreadable damage note")]
 
 
 class LocalFiles:
@@ -164,6 +168,7 @@ class LocalFiles:
 
     def _recorded(self, marker: Marker) -> list[Damage]:
         path = self._note_path(marker.stage, marker.unit)
+        where = path.relative_to(self.root).as_posix()
         note = _UNWRITTEN_NOTES.get(str(path))
         try:
             if note is None:
@@ -171,8 +176,8 @@ class LocalFiles:
         except FileNotFoundError:
             return []
         except ValueError:
-            note = None, "unreadable"  # no note's shape: `_noted_damage` says so
-        return _noted_damage(marker, note, path.relative_to(self.root).as_posix())
+            return _unreadable_note(marker, where)
+        return _noted_damage(marker, note, where)
 
     def update_damage(self, stage: str, damaged: Iterable[tuple[Marker, list[Damage]]] = (),
                       cleared: Iterable[str] = ()) -> None:
@@ -286,8 +291,6 @@ class StoreFiles:
         self._fetch_job()
 
     def _check_store(self) -> None:
-        from pipeline.store.remote import StoreError
-
         try:
             self.store.check()
         except StoreError as error:

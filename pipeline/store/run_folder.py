@@ -177,7 +177,7 @@ class RunFolder:
         `verify`); with `verify`, also a checksum mismatch. `recorded` adds the damage an earlier verify or
         reader noted for this marker (`record_damage`)."""
         found = self.files.check(marker, verify)
-        return found + self.files.recorded_damage([marker])[0] if recorded else found
+        return (found + self.files.recorded_damage([marker])[0]) if recorded else found
 
     def damage(self, markers: dict[str, Marker]) -> dict[str, list[Damage]]:
         """Unit id -> problems, for the units of `markers` whose committed files are not as their marker says.
@@ -208,10 +208,6 @@ class RunFolder:
         marker = self.marker(stage, unit)
         return self.committed_location(marker, relative) if marker is not None and relative in marker.outputs else None
 
-    def part_location(self, marker: Marker, relative: str) -> Path | str:
-        """Where a Parquet part committed by `marker` is read (a Path on disk, a URL on a store)."""
-        return self.files.path_of(marker, relative)
-
     def trusted_parts(self, dataset: str,
                       checked: CheckedStages | None = None) -> tuple[list[TrustedPart], list[Damage]]:
         """Part files of `dataset` named by markers of undamaged units, sorted, and the damage that left the
@@ -233,7 +229,7 @@ class RunFolder:
                 if unit in problems:
                     damaged.extend(problems[unit])
                     continue
-                parts.extend(TrustedPart(self.part_location(marker, name), name, stage, unit) for name in names)
+                parts.extend(TrustedPart(self.files.path_of(marker, name), name, stage, unit) for name in names)
         return sorted(parts, key=lambda p: p.relative), damaged
 
     def read(self, dataset: str, warn: bool = True) -> pa.Table:
@@ -262,7 +258,7 @@ class RunFolder:
         return pa.concat_tables(tables) if tables else schema.empty_table()
 
     def read_part(self, location: Path | str, schema: pa.Schema, **options: Any) -> pa.Table:
-        """One trusted part (a location from `part_location`), read in place."""
+        """One trusted part (a Path on disk, a URL on a store: `trusted_parts`, `committed_part`), read in place."""
         return self.files.read_part(location, schema, **options)
 
     def video_store(self, embodiment: str, video_name: str) -> Path:
