@@ -6,9 +6,10 @@ uploaded under `_attempts/<stage>/<unit>/<attempt id>/`, and on local disk its s
 storage. Garbage collection deletes them under the run lock: while it is held no driver runs this run, so
 an attempt prefix that no marker names can never become committed. The markers' `keys` are the only
 record of what is live (one listing of `_state/` and one batched fetch); `_attempts/` is listed once,
-which is fine here (gc is not a hot path). Two extra precautions: a marker that cannot be fetched stops
-the collection (its objects would look dead), and an attempt of a process still alive on this host (a
-Ray worker that outlived its driver) is left alone.
+which is fine here (gc is not a hot path). Three extra precautions: a marker that cannot be fetched stops
+the collection (its objects would look dead); an attempt of a process still alive on this host (a Ray
+worker that outlived its driver) is left alone; and every batch of deletions is fenced like a commit (the
+lock must still name this gc), so a gc that lost its lease during an outage stops before it deletes more.
 """
 
 from __future__ import annotations
@@ -56,8 +57,8 @@ def collect_garbage(run: RunFolder, dry_run: bool = False, on_progress: GarbageP
     report = GarbageReport(dry_run=dry_run)
     with run.locked():
         if run.store is not None:
-            _collect_store(run.store, report, on_progress)
-        _collect_staging(run.root / STAGING, report)
+            _collect_store(run.store, report, on_progress, run.check_fence)
+        _collect_staging(run.root / STAGING, report, run.check_fence)
     return report
 
 
@@ -85,7 +86,8 @@ def attempt_prefix(key: str) -> str:
     return "/".join(key.split("/")[:4])
 
 
-def _collect_store(store: RunStore, report: GarbageReport, on_progress: GarbageProgress | None) -> None:
+def _collect_store(store: RunStore, report: GarbageReport, on_progress: GarbageProgress | None,
+                   check_fence: Callable[[], None]) -> None:
     live = live_attempts(store)
     dead: dict[str, list[str]] = {}
     kept: set[str] = set()
@@ -106,6 +108,7 @@ def _collect_store(store: RunStore, report: GarbageReport, on_progress: GarbageP
     if report.dry_run:
         return
     for start in range(0, len(doomed), DELETE_BATCH):
+        check_fence()
         store.delete_objects(doomed[start:start + DELETE_BATCH])
         if on_progress is not None:
             on_progress(min(start + DELETE_BATCH, len(doomed)), len(doomed))
@@ -113,7 +116,7 @@ def _collect_store(store: RunStore, report: GarbageReport, on_progress: GarbageP
              len(report.attempts))
 
 
-def _collect_staging(staging: Path, report: GarbageReport) -> None:
+def _collect_staging(staging: Path, report: GarbageReport, check_fence: Callable[[], None]) -> None:
     """Staging folders `_staging/<stage>/<unit>.<host>.<pid>` of attempts that are over."""
     if not staging.is_dir():
         return
@@ -124,6 +127,7 @@ def _collect_staging(staging: Path, report: GarbageReport) -> None:
             continue
         report.staging.append(folder.relative_to(staging.parent).as_posix())
         if not report.dry_run:
+            check_fence()
             shutil.rmtree(folder, ignore_errors=True)
 
 

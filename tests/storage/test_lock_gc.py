@@ -320,6 +320,30 @@ def test_gc_on_local_disk_removes_staging_folders_of_dead_attempts(tmp_path):
     assert not dead_folder.exists() and alive_folder.exists()
 
 
+def test_gc_that_loses_its_lock_stops_deleting(tmp_path, monkeypatch):
+    from pipeline.store import garbage
+    from pipeline.store.lock import LeaseLostError
+
+    run = tmp_path / "run"
+    (run / "_state").mkdir(parents=True)
+    (run / "job.yaml").write_text("job_hash: x\n", encoding="utf-8")
+    dead = [run / "_staging" / "render" / f"emb.proc-{k}.0000.otherhost.4242" for k in (1, 2)]
+    for folder in dead:
+        folder.mkdir(parents=True)
+    real_rmtree = garbage.shutil.rmtree
+
+    def then_another_driver_takes_the_lock(path, **options):
+        real_rmtree(path, **options)  # the first folder goes; then the lease is lost to another driver
+        (run / lock_module.LOCK_KEY).write_text(json.dumps({"owner": "another", "pid": 1, "host": "elsewhere",
+                                                            "heartbeat": time.time()}), encoding="utf-8")
+
+    monkeypatch.setattr(garbage.shutil, "rmtree", then_another_driver_takes_the_lock)
+    with pytest.raises(LeaseLostError, match="held by pid 1 on elsewhere"):
+        collect_garbage(RunFolder.open(run))
+    assert not dead[0].exists() and dead[1].exists()  # fenced: nothing deleted after the lease was lost
+    assert json.loads((run / lock_module.LOCK_KEY).read_text())["owner"] == "another"  # and its lock kept
+
+
 @pytest.mark.parametrize("where", ["s3", "memory"])
 def test_conditional_writes_refuse_a_writer_that_read_an_older_version(s3, where):
     store = RunStore(s3.url("runs/conditions") if where == "s3" else "memory://lockgc/conditions")
