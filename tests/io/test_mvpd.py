@@ -22,6 +22,7 @@ from pipeline.io.mvpd import MvpdExportError, MvpdFormatError, export_release, i
 from pipeline.io.mvpd import export as mvpd_export
 from pipeline.io.mvpd.layout import (
     color_to_object_id,
+    mvpd_categories,
     ids_to_png,
     matrix_to_quaternion,
     object_id_to_color,
@@ -30,6 +31,7 @@ from pipeline.io.mvpd.layout import (
     pose_to_mvpd,
     quaternion_to_matrix,
 )
+from pipeline.io.mvpd.panoptic_json import PanopticJsonSpool
 from pipeline.io.tables import to_table
 from pipeline.io.zarr_video import VideoWriter, open_video
 from pipeline.store.run_folder import RunFolder
@@ -360,6 +362,20 @@ def test_export_of_the_imported_example_reproduces_its_masks_and_instances(sampl
         copy = tmp_path / "test" / "panomasksRGB" / mask.parent.name / mask.name
         np.testing.assert_array_equal(np.asarray(Image.open(copy)), np.asarray(Image.open(mask)))
     assert not (tmp_path / "test" / "imagesRGB").exists()  # absent in the release: not invented
+
+
+def test_spooled_panoptic_json_equals_the_whole_object_written_at_once(sample_run: RunFolder,
+                                                                     tmp_path: Path) -> None:
+    export_release(sample_run, tmp_path, split="test")
+    written = (tmp_path / "test" / "panoptic_test.json").read_bytes()
+    data = json.loads(written)
+    assert len(data["videos"]) == 3 and len(data["instances"]) > 0
+    assert written == json.dumps(data, separators=(", ", ": ")).encode()  # the bytes write_json gives
+    assert not list((tmp_path / "test").glob(".*spool"))  # the spools are gone
+    empty = PanopticJsonSpool(tmp_path, "empty.json")
+    empty.finish()
+    assert (tmp_path / "empty.json").read_text() == json.dumps(
+        {"videos": [], "annotations": [], "categories": mvpd_categories(), "instances": []}, separators=(", ", ": "))
 
 
 # ------------------------------------------------------------------------------------ bad input

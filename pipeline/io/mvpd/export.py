@@ -34,12 +34,12 @@ from pipeline.io.mvpd.layout import (
     SplitPaths,
     frame_stem,
     ids_to_png,
-    mvpd_categories,
     object_id_to_color,
     pose_to_mvpd,
     write_json,
 )
 from pipeline.io.segments import DenseLabels, frame_segments, unique_with_inverse
+from pipeline.io.mvpd.panoptic_json import PanopticJsonSpool
 from pipeline.io.mvpd.split_files import empty_videos_file, split_rows_of, zero_shot_file
 from pipeline.io.reader import video_locations
 from pipeline.io.zarr_video import Video, open_video
@@ -68,6 +68,15 @@ class VideoExport:
     instance_id_map: dict[Any, dict[str, Any]]  # segment id -> entry (str keys once finished)
     empty: bool
     instances: dict[int, dict[str, Any]] = field(default_factory=dict)  # segment id -> release `instance` entry
+
+
+@dataclass
+class ExportedVideo:
+    """What the export keeps of a video once its entries are spooled to the split's JSON."""
+
+    name: str
+    frames: int
+    empty: bool
 
 
 @dataclass
@@ -117,12 +126,8 @@ def export_release(run: RunFolder, out_root: Path, split: str = "test", embodime
     staging.mkdir(parents=True)
     try:
         tasks = _video_tasks(run, videos, chosen, lit, objects, staging)
-        exported = []
-        for name, export in zip(videos, _export_videos(tasks)):
-            exported.append(export)
-            if on_video is not None:
-                on_video(name)
-        _write_split_files(staging, split, exported)
+        exported = _spool_videos(tasks, staging / f"panoptic_{split}.json", on_video)
+        _write_filter_files(staging, split, exported)
         if split_rows is not None:
             rows = [split_rows[v.name] for v in exported]
             write_json(staging / EMPTY_VIDEOS, empty_videos_file(rows))
@@ -134,7 +139,7 @@ def export_release(run: RunFolder, out_root: Path, split: str = "test", embodime
         raise
     rejected = ([v.name for v in exported if v.empty] if split_rows is None
                 else [v.name for v in exported if not split_rows[v.name]["accepted"]])
-    return ExportSummary(paths.folder, len(exported), sum(len(v.images) for v in exported), rejected,
+    return ExportSummary(paths.folder, len(exported), sum(v.frames for v in exported), rejected,
                          time.monotonic() - started, warnings)
 
 
@@ -235,6 +240,23 @@ def _export_video(task: VideoTask) -> VideoExport:
     """Write one video's files (in this process or a worker) and return its entries."""
     extra_rgb = {folder: open_video(store) for folder, store in task.extra_rgb.items()}
     return VideoExporter(open_video(task.store), task.objects, task.split_folder, extra_rgb, task.first_image_id).run()
+
+
+def _spool_videos(tasks: list[VideoTask], panoptic_json: Path, on_video: Callable[[str], None] | None
+                  ) -> list[ExportedVideo]:
+    """Export every video, appending its entries to `panoptic_json` as it finishes (see panoptic_json.py)."""
+    spool, exported = PanopticJsonSpool(panoptic_json.parent, panoptic_json.name), []
+    try:
+        for export in _export_videos(tasks):
+            spool.add(export.name, export.images, export.annotations, export.instance_id_map,
+                      [export.instances[k] for k in sorted(export.instances)])
+            exported.append(ExportedVideo(export.name, len(export.images), export.empty))
+            if on_video is not None:
+                on_video(export.name)
+        spool.finish()
+    finally:
+        spool.close()
+    return exported
 
 
 def _export_videos(tasks: list[VideoTask]) -> Iterator[VideoExport]:
@@ -412,19 +434,8 @@ def _write_depth_png(path: Path, depth: np.ndarray) -> None:
 # ------------------------------------------------------------------------------------- split files
 
 
-def _write_split_files(folder: Path, split: str, exported: list[VideoExport]) -> None:
-    """panoptic_<split>.json, empty_videos.json and zero_shot.json of the split, into `folder`."""
-    panoptic = {
-        "videos": [{"video_id": v.name, "video_name": v.name, "images": v.images} for v in exported],
-        "annotations": [
-            {"video_id": v.name, "video_name": v.name, "annotations": v.annotations, "instance_id_map": v.instance_id_map}
-            for v in exported
-        ],
-        "categories": mvpd_categories(),
-        # One entry per (video, instance it shows): what the authors' zero-shot script reads.
-        "instances": [v.instances[k] for v in exported for k in sorted(v.instances)],
-    }
-    write_json(folder / f"panoptic_{split}.json", panoptic)
+def _write_filter_files(folder: Path, split: str, exported: list[ExportedVideo]) -> None:
+    """empty_videos.json and zero_shot.json of a split exported without a split stage, into `folder`."""
     write_json(folder / EMPTY_VIDEOS, {"accepted": [v.name for v in exported if not v.empty],
                                     "rejected": [v.name for v in exported if v.empty]})
     # Until a split stage exists no object is zero-shot, so no training video is removed for one.
