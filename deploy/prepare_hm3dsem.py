@@ -1,9 +1,10 @@
 """Lay out downloaded HM3DSem scenes the way jobs/mvpd.yaml reads them, under HM3D's numbered names.
 
 HM3D ships each scene as a folder `<NNNNN>-<id>/` holding `<id>.glb` (in the `*-glb-v0.2` archive) and
-`<id>.semantic.glb`, `<id>.semantic.txt` (in the `*-semantic-annots-v0.2` archive). The scene reader
-names a scene after its files (`<id>`), but MVPd's video names and the `hm3d` split mode need the
-numbered name (`00808-y9hTuugGdiq`: 00000-00799 train, 00800-00899 the held-out pool). This links
+`<id>.semantic.glb`, `<id>.semantic.txt` (in the `*-semantic-annots-v0.2` archive). The scene reader needs
+the three files in one folder. It names a scene after a numbered folder `<NNNNN>-<id>` holding `<id>.*`
+(else after the files), since MVPd's video names and the `hm3d` split mode need the numbered name
+(`00808-y9hTuugGdiq`: 00000-00799 train, 00800-00899 the held-out pool). This links
 (or copies, across file systems) each annotated scene's three files into
 `<out>/<NNNNN>-<id>/<NNNNN>-<id>.{glb,semantic.glb,semantic.txt}`; nothing is rewritten.
 

@@ -17,6 +17,7 @@ a permutation with one sign change, so float32 coordinates round-trip bit for bi
 from __future__ import annotations
 
 import csv
+import re
 from pathlib import Path
 
 import numpy as np
@@ -120,6 +121,14 @@ def _appearance(mesh: GlbMesh) -> dict:
     return {"face_uvs": uvs.astype(np.float32), "textures": textures, "face_material": face_texture.astype(np.uint16)}
 
 
+def hm3dsem_scene_id(semantic_txt: Path) -> str:
+    """The scene id of an HM3DSem trio: in HM3D's own layout, `<NNNNN>-<id>/<id>.semantic.txt`, the numbered
+    folder name (MVPd's video names and the `hm3d` split need it); elsewhere the files' `<id>`."""
+    stem = semantic_txt.name[: -len(SEMANTIC_TXT)]
+    folder = semantic_txt.parent.name
+    return folder if re.fullmatch(rf"\d{{5}}-{re.escape(stem)}", folder) else stem
+
+
 def read_hm3dsem(semantic_txt: Path, up_axis: str = "z") -> Scene:
     """Read an HM3DSem trio given its `.semantic.txt` path; raises SceneError naming the bad file."""
     semantic_txt = Path(semantic_txt)
@@ -149,7 +158,7 @@ def read_hm3dsem(semantic_txt: Path, up_axis: str = "z") -> Scene:
     present = np.unique(face_ids[face_ids > 0])
     objects = {int(c): SceneObject(int(c), table[int(c)][0], category_of(table[int(c)][0]), table[int(c)][1]) for c in present}
     return Scene(
-        scene_id=stem, vertices=to_world(geometry.vertices, transform), faces=geometry.faces.astype(np.int32),
+        scene_id=hm3dsem_scene_id(semantic_txt), vertices=to_world(geometry.vertices, transform), faces=geometry.faces.astype(np.int32),
         face_object_ids=face_ids, objects=objects, to_world=transform, source="hm3dsem", path=str(semantic_txt),
         unknown_colors=int((unknown != VOID_COLOR).sum()), **_appearance(geometry),
     )

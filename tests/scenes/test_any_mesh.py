@@ -109,6 +109,18 @@ def test_a_tiny_extent_is_named(tmp_path: Path, caplog: pytest.LogCaptureFixture
     assert sum("0.25 m across" in r.getMessage() and "scale" in r.getMessage() for r in caplog.records) == 1
 
 
+def test_hm3ds_own_layout_names_the_scene_after_its_numbered_folder(house_files: Path, tmp_path: Path) -> None:
+    stem = house_files.name[: -len(".semantic.txt")]
+    numbered, flat = tmp_path / "hm3d" / "00800-TEEsavR23oF", tmp_path / "hm3d" / "flat"
+    for folder, name in ((numbered, "TEEsavR23oF"), (flat, "ownname")):  # HM3D's <NNNNN>-<id>/<id>.*; any other folder
+        folder.mkdir(parents=True)
+        for suffix in (".semantic.txt", ".semantic.glb", ".glb"):
+            shutil.copy(house_files.with_name(stem + suffix), folder / f"{name}{suffix}")
+    refs = list_scene_refs(SceneSources.model_validate({"hm3dsem": {"root": str(tmp_path / "hm3d")}}))
+    assert [r.scene_id for r in refs] == ["00800-TEEsavR23oF", "ownname"]  # MVPd's video names need the number
+    assert [r.load().scene_id for r in refs] == ["00800-TEEsavR23oF", "ownname"]
+
+
 def test_a_basis_glb_without_the_plain_glb_is_refused_when_listed(house_files: Path, tmp_path: Path) -> None:
     folder = tmp_path / "hm3d" / "00009-basis"
     folder.mkdir(parents=True)
