@@ -364,7 +364,7 @@ def widened_alpha(alpha, cos_x):  # pragma: no cover (compiled)
 
 def _lobe(normals: np.ndarray, a: np.ndarray, b: np.ndarray, alpha: np.ndarray, tables: ReflectionTables
           ) -> np.ndarray:
-    """(n,) the lobe f(a, b) / E_ss(cos_b) of surfaces of `normals` between unit directions a and b (n, 3)."""
+    """(n,) the lobe f(a, b) M(cos_b) of surfaces of `normals` between unit directions a and b (n, 3)."""
     half = a + b
     half /= np.maximum(np.linalg.norm(half, axis=1, keepdims=True), 1e-12)
     cos_a, cos_b = np.sum(normals * a, axis=1), np.sum(normals * b, axis=1)
