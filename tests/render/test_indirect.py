@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from pipeline.config import Illumination, IndirectLight
-from pipeline.render.indirect import IndirectGather
+from pipeline.render import indirect
+from pipeline.render.indirect import IndirectGather, _accumulate as accumulate
 from pipeline.render.lighting import SurfaceColors, srgb_to_linear
 from pipeline.render.material import multiscatter_energy, reflection_tables
 from pipeline.render.raycaster import SceneRaycaster
@@ -106,6 +107,21 @@ def test_a_wide_clamp_costs_no_light_in_the_closed_box() -> None:
     indirect = gather.irradiance_at(points, normals, look_at(np.zeros(3), np.array([0.3, 0.2, 1.0])))[:, 0]
     ratio = 1.0 + indirect.mean() / (gather.ray_flux.sum() / (6 * 2.0 * 2.0))
     assert ratio == pytest.approx(1.0 / (1.0 - rho), rel=0.04)
+
+
+def test_russian_roulette_of_shadow_rays_casts_fewer_rays_and_keeps_the_mean(monkeypatch: pytest.MonkeyPatch) -> None:
+    scene, sides = _box(2.0)
+    gather = IndirectGather(SceneRaycaster(scene).mesh, SurfaceColors(scene), _spot(bounces=2, lights=256), seed=0)
+    points, normals = _surface_samples(sides, 3000, np.random.default_rng(1))
+    pose = look_at(np.zeros(3), np.array([0.3, 0.2, 1.0]))
+    cast = []
+    counted = lambda cells, *rest: (cast.append(len(cells)), accumulate(cells, *rest))  # noqa: E731
+    monkeypatch.setattr(indirect, "_accumulate", counted)
+    with_roulette = gather.irradiance_at(points, normals, pose)[:, 0]
+    monkeypatch.setattr(indirect, "ROULETTE_BELOW", 0.0)
+    every_ray = gather.irradiance_at(points, normals, pose)[:, 0]
+    assert cast[0] < 0.6 * cast[1]
+    assert with_roulette.mean() == pytest.approx(every_ray.mean(), rel=0.01)
 
 
 def test_same_seed_same_bytes_and_a_still_camera_does_not_flicker() -> None:
