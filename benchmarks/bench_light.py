@@ -13,10 +13,14 @@ Same run, same poses of the 1 M-triangle benchmark house (bench_render's planned
 - quality: PSNR and mean absolute difference (8-bit sRGB) against a converged Cycles reference (the
   authors' light paths and material: Principled specular 1.0 / roughness 0.5, 16 bounces of every kind;
   `REFERENCE` below says how many samples and that OpenImageDenoise cleaned it), for ours, for the
-  authors' own Cycles 16 spp render, for our direct light alone, and (check of the direct model) ours
-  diffuse-direct against Cycles diffuse-direct. The reference and the 16 spp images are cached as 8-bit
-  PNGs under benchmarks/results/light/ with JSONs saying how they were made; `--reference` and
-  `--cycles16` render them anew (the reference took 2-7 min per frame on the shared 2 cores).
+  authors' own Cycles 16 spp render, for our direct light alone, and (checks of the direct models) ours
+  against Cycles' direct-only renders, diffuse and principled (no bounces; point light, 0.01 px filter: 1
+  spp is exact). The reference's own floor: the same reference rendered with another seed for two poses
+  (`REFERENCE_FLOOR`), against the reference (its noise shows twice: each reference alone is ~3 dB
+  better). The reference, its second seed and the 16 spp images are cached as 8-bit PNGs under
+  benchmarks/results/light/ with JSONs saying how they were made; `--reference`, `--reference-floor` and
+  `--cycles16` render them anew (the reference took 2-7 min per frame on the shared 2 cores). Also the
+  CPU milliseconds per frame of our indirect light alone (IndirectGather.irradiance).
 - speed: ours end to end (every buffer and the Zarr write, bench_render.run_ours), Mitsuba `direct` 1 spp,
   Cycles 1 spp (authors' light paths), per frame, in this run.
 - side-by-side PNGs: ours | Cycles 16 spp | reference, one per pose (half size), under benchmarks/results/light/.
@@ -37,7 +41,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import cv2
 import numpy as np
@@ -57,6 +61,8 @@ EXPOSURE = 4.0  # as bench_render: a 20 W light puts white at 1 m near full scal
 BLENDER_SPOT_SCALE = 2.0  # 4 pi / 2 pi: measured 0.5000 ratio of Cycles to our direct radiance
 POWER = 20.0
 REFERENCE = {"name": "reference", "samples": 32, "bounces": 16, "denoise": True, "seed": 1}
+# The reference's own floor: the same render with another seed, of two quality poses (the worst and the first).
+REFERENCE_FLOOR = {**REFERENCE, "name": "reference_seed2", "seed": 2, "poses": [0, 6]}
 AUTHORS = {"name": "cycles16", "samples": 16, "bounces": 16, "seed": 0}
 DEBIAN_LLVM = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
 TARGET_PSNR = 35.0
@@ -135,18 +141,20 @@ def ours_frames(scene: Scene, poses: np.ndarray, light: Illumination, seed: int 
     return [renderer.render(pose).rgb.copy() for pose in poses]
 
 
-def load_cached(name: str, count: int) -> list[np.ndarray] | None:
-    """Cached 8-bit renders `<name>_XX.png` (RGB) of the quality poses, or None when there are fewer than `count`."""
-    paths = [RESULTS / f"{name}_{i:02d}.png" for i in range(count)]
+def load_cached(name: str, indices: Sequence[int]) -> list[np.ndarray] | None:
+    """Cached 8-bit renders `<name>_XX.png` (RGB) of the quality poses `indices`, or None when one is missing."""
+    paths = [RESULTS / f"{name}_{i:02d}.png" for i in indices]
     if not all(p.exists() for p in paths):
         return None
     return [cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in paths]
 
 
 def cache_renders(name: str, radiance: np.ndarray, render: dict, poses: np.ndarray, threads: int) -> list[np.ndarray]:
-    """Encode Cycles renders like ours, store them as `<name>_XX.png` with `<name>.json` saying how they were made."""
+    """Encode Cycles renders like ours, store them as `<name>_XX.png` (XX: the index of the quality pose) with
+    `<name>.json` saying how they were made."""
     images = [to_8bit(image, BLENDER_SPOT_SCALE * EXPOSURE) for image in radiance]
-    for index, image in enumerate(images):
+    poses = poses[render["poses"]] if "poses" in render else poses
+    for index, image in zip(render.get("poses", range(len(images))), images):
         save_png(RESULTS / f"{name}_{index:02d}.png", image)
     (RESULTS / f"{name}.json").write_text(json.dumps({
         "renderer": f"Blender Cycles (bpy from PyPI, benchmarks/peer_cycles.py), CPU, {threads} threads",
@@ -175,6 +183,8 @@ def main() -> None:
     parser.add_argument("--reference", action="store_true", help="render the converged reference anew")
     parser.add_argument("--cycles16", action="store_true", help="render the authors' 16 spp images anew "
                         "(cached beside the reference otherwise: ~1 min per frame on 2 cores)")
+    parser.add_argument("--reference-floor", action="store_true", help="render the reference of poses "
+                        f"{REFERENCE_FLOOR['poses']} anew with another seed (its own noise floor; cached otherwise)")
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
 
@@ -195,13 +205,17 @@ def measure(args: argparse.Namespace, folder: Path) -> dict[str, Any]:
     scene, all_poses, pose_source = planned_poses(args.speed_frames, folder)
     poses = spread(all_poses, args.poses)
     speed_poses = spread(all_poses, args.speed_frames)
-    reference = None if args.reference else load_cached("reference", len(poses))
-    authors = None if args.cycles16 else load_cached("cycles16", len(poses))
+    reference = None if args.reference else load_cached("reference", range(len(poses)))
+    authors = None if args.cycles16 else load_cached("cycles16", range(len(poses)))
+    floor = None if args.reference_floor else load_cached(REFERENCE_FLOOR["name"], REFERENCE_FLOOR["poses"])
     quality_frames = {"frames": len(poses)}
+    # Direct light only (no bounces; a point light and a 0.01 px filter: 1 spp is exact), diffuse and principled.
     renders = [{"name": "direct", "samples": 4, "bounces": 0, "material": "diffuse", **quality_frames},
+               {"name": "direct_principled", "samples": 1, "bounces": 0, **quality_frames},
                {"name": "cycles1", "samples": 1, "bounces": 16, "frames": args.cycles_speed_frames}]
     renders += [{**AUTHORS, **quality_frames}] if authors is None else []
     renders += [{**REFERENCE, **quality_frames}] if reference is None else []
+    renders += [REFERENCE_FLOOR] if floor is None else []
     # The poses file holds the quality poses, then the speed poses (Mitsuba times those).
     export(scene, np.concatenate([poses, speed_poses]), folder / "peer", renders, [], args.threads)
     result: dict[str, Any] = {"scene": {"triangles": scene.triangle_count, "poses": pose_source},
@@ -220,9 +234,15 @@ def measure(args: argparse.Namespace, folder: Path) -> dict[str, Any]:
     if cycles_ok and reference is None:
         reference = cache_renders("reference", np.load(folder / "peer" / "reference.npz")["images"], REFERENCE, poses,
                                   args.threads)
+    if cycles_ok and floor is None:
+        floor = cache_renders(REFERENCE_FLOOR["name"], np.load(folder / "peer" / "reference_seed2.npz")["images"],
+                              REFERENCE_FLOOR, poses, args.threads)
     if reference is None:
         print("no converged reference (cached PNGs missing and Cycles unavailable): quality not measured")
     quality = measure_quality(scene, poses, reference, authors, folder / "peer" if cycles_ok else None)
+    if reference is not None and floor is not None:
+        quality["reference_seed2_vs_reference"] = {
+            "poses": REFERENCE_FLOOR["poses"], **compare(floor, [reference[i] for i in REFERENCE_FLOOR["poses"]])}
     result["quality"] = quality
     result["speed"] = measure_speed(scene, speed_poses, args, folder, cycles_ok)
     result["targets"] = targets(result)
@@ -231,19 +251,22 @@ def measure(args: argparse.Namespace, folder: Path) -> dict[str, Any]:
 
 def measure_quality(scene: Scene, poses: np.ndarray, reference: list[np.ndarray] | None,
                     authors: list[np.ndarray] | None, peer: Path | None) -> dict[str, Any]:
-    """PSNR / MAD of ours and of Cycles 16 spp (`authors`) against the reference; the direct-model check
-    (Cycles' diffuse direct render in `peer`); side-by-side PNGs."""
+    """PSNR / MAD of ours and of Cycles 16 spp (`authors`) against the reference; the checks of the direct
+    models (Cycles' diffuse and principled direct renders in `peer`); side-by-side PNGs."""
     quality: dict[str, Any] = {}
     ours = ours_frames(scene, poses, mvpd_spot())
+    ours_direct = ours_frames(scene, poses, mvpd_spot(bounces=0))
     if peer is not None:
-        cycles_direct = [to_8bit(image, BLENDER_SPOT_SCALE * EXPOSURE)
-                         for image in np.load(peer / "direct.npz")["images"][: len(poses)]]
-        ours_diffuse = ours_frames(scene, poses, mvpd_spot(material="diffuse", bounces=0))
-        quality["diffuse_direct_vs_cycles_direct"] = compare(ours_diffuse, cycles_direct)
+        for material, name, frames in (("diffuse", "direct", ours_frames(scene, poses, mvpd_spot("diffuse", 0))),
+                                       ("principled", "direct_principled", ours_direct)):
+            cycles_direct = [to_8bit(image, BLENDER_SPOT_SCALE * EXPOSURE)
+                             for image in np.load(peer / f"{name}.npz")["images"][: len(poses)]]
+            quality[f"{material}_direct_vs_cycles_direct"] = compare(frames, cycles_direct)
+    quality["indirect_cpu_ms_per_frame"] = indirect_cpu_ms(scene, poses)
     if reference is None:
         return quality
     quality["ours_vs_reference"] = compare(ours, reference)
-    quality["ours_direct_only_vs_reference"] = compare(ours_frames(scene, poses, mvpd_spot(bounces=0)), reference)
+    quality["ours_direct_only_vs_reference"] = compare(ours_direct, reference)
     quality["ours_diffuse_material_vs_reference"] = compare(ours_frames(scene, poses, mvpd_spot(material="diffuse")),
                                                             reference)
     if authors is not None:
@@ -254,6 +277,21 @@ def measure_quality(scene: Scene, poses: np.ndarray, reference: list[np.ndarray]
             save_png(RESULTS / f"side_by_side_{index:02d}.png",
                      cv2.resize(panels, (panels.shape[1] // 2, panels.shape[0] // 2), interpolation=cv2.INTER_AREA))
     return quality
+
+
+def indirect_cpu_ms(scene: Scene, poses: np.ndarray, repeats: int = 3) -> dict[str, Any]:
+    """CPU milliseconds per frame of the indirect light alone (IndirectGather.irradiance, every thread), per
+    repeat over `poses`, and their median."""
+    renderer = VideoRenderer(scene, Embodiment(name="bench", sensor=Sensor(), illumination=mvpd_spot()), EXPOSURE)
+    traced = [(renderer.trace(pose), pose) for pose in poses]
+    renderer.indirect.irradiance(*traced[0])  # compiled and warm
+    per_repeat = []
+    for _ in range(repeats):
+        started = time.process_time()
+        for hits, pose in traced:
+            renderer.indirect.irradiance(hits, pose)
+        per_repeat.append(1000.0 * (time.process_time() - started) / len(traced))
+    return {"per_repeat": [round(v, 1) for v in per_repeat], "median": round(float(np.median(per_repeat)), 1)}
 
 
 def measure_speed(scene: Scene, poses: np.ndarray, args: argparse.Namespace, folder: Path,

@@ -3,7 +3,8 @@
 Run by bench_light.py as `/work/venvs/bpy/bin/python benchmarks/peer_cycles.py FOLDER`; install with
 `bash benchmarks/setup_light_peers.sh`. FOLDER holds `scene.npz` (vertices (V, 3) float32, faces (F, 3) int32,
 colors (V, 3) float32 linear albedo), `poses.npy` ((N, 4, 4) camera-to-world, OpenCV axes) and `settings.json`
-(camera, light, material, the list of `renders` to make). Each render writes `<name>.npz` beside them:
+(camera, light, material, the list of `renders` to make: the first `frames` poses, or the poses of the
+indices `poses`). Each render writes `<name>.npz` beside them:
 `images` (N, H, W, 3) float32 linear radiance as Cycles reports it, `seconds` and `cpu_seconds` (of the
 process, every thread) per frame (render and EXR write).
 
@@ -140,7 +141,7 @@ def render_all(folder: Path, poses: np.ndarray, camera: bpy.types.Object, render
     scene.objects["house"].data.update()
     images, seconds, cpu_seconds = [], [], []
     with tempfile.TemporaryDirectory() as scratch:
-        for index, pose in enumerate(poses):
+        for index, pose in enumerate(poses[render["poses"]] if "poses" in render else poses):
             camera.matrix_world = Matrix((pose @ OPENCV_TO_BLENDER).tolist())
             bpy.context.view_layer.update()
             scene.render.filepath = str(Path(scratch) / f"{index}.exr")

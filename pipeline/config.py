@@ -213,7 +213,7 @@ class IndirectLight(Strict):
     bounces: int = Field(0, ge=0, le=64, description="bounces of light after the first hit; 0 = direct only")
     traced_bounces: int = Field(3, ge=1, le=64, description="bounces traced with virtual lights; the bounces past "
                                 "them repeat the last traced one, scaled by the measured ratio of successive bounces")
-    virtual_lights: int = Field(1024, ge=16, le=65536, description="virtual point lights per bounce")
+    virtual_lights: int = Field(2304, ge=16, le=65536, description="virtual point lights per bounce")
     gather_stride: int = Field(12, ge=1, le=64, description="pixels between gather points (each axis)")
     interleave: int = Field(8, ge=1, le=8, description="gather points in a block of interleave x interleave see "
                             "different subsets of the lights")
