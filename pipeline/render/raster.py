@@ -71,8 +71,11 @@ class Rasterizer:
     `draw_band` and `resolve_band` may run on different bands in parallel (they release the GIL).
     """
 
-    def __init__(self, mesh: ClusteredMesh, pixel_x: np.ndarray, pixel_y: np.ndarray):
+    def __init__(self, mesh: ClusteredMesh, pixel_x: np.ndarray, pixel_y: np.ndarray, fx: float, fy: float):
+        """`pixel_x`, `pixel_y`: camera-frame x / z per column and y / z per row of the pixel centres
+        (`Camera.pixel_axes`); `fx`, `fy`: the focal lengths in pixels (columns per unit of x / z)."""
         self.mesh = mesh
+        self.focal = (float(fx), float(fy))
         self.pixel_x = np.ascontiguousarray(pixel_x, np.float64)
         self.pixel_y = np.ascontiguousarray(pixel_y, np.float64)
         height, width = len(pixel_y), len(pixel_x)
@@ -86,8 +89,8 @@ class Rasterizer:
     def visible_clusters(self, camera_to_world: np.ndarray) -> None:
         """The clusters inside the view, nearest first, with their pixel rectangles (for `draw_band`)."""
         pose = np.ascontiguousarray(camera_to_world, np.float64)
-        inside = _cull_clusters(self.mesh.low, self.mesh.high, pose, self.pixel_x, self.pixel_y, self.rects,
-                                self.nearest)
+        inside = _cull_clusters(self.mesh.low, self.mesh.high, pose, self.pixel_x, self.pixel_y, *self.focal,
+                                self.rects, self.nearest)
         self.order = inside[np.argsort(self.nearest[inside], kind="stable")]
 
     def draw_band(self, rows: slice, camera_to_world: np.ndarray) -> None:
@@ -96,8 +99,8 @@ class Rasterizer:
             shape = (-(-(rows.stop - rows.start) // TILE), -(-len(self.pixel_x) // TILE))
             self._tiles[rows.start] = (np.empty(shape, np.float32), np.empty(shape, np.bool_))
         _draw(self.mesh.corners, self.mesh.starts, self.order, self.rects, self.nearest,
-              np.ascontiguousarray(camera_to_world, np.float64), self.pixel_x, self.pixel_y, rows.start, rows.stop,
-              self.inverse_depth, self.winner, *self._tiles[rows.start])
+              np.ascontiguousarray(camera_to_world, np.float64), self.pixel_x, self.pixel_y, *self.focal, rows.start,
+              rows.stop, self.inverse_depth, self.winner, *self._tiles[rows.start])
 
     def resolve_band(self, rows: slice, camera_to_world: np.ndarray, miss: int, out: tuple[np.ndarray, ...]) -> None:
         """Intersect each pixel's ray of rows `rows` with its winning triangle, into `out` = (depth, face,
@@ -107,12 +110,10 @@ class Rasterizer:
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _cull_clusters(low, high, pose, pixel_x, pixel_y, rects, nearest):  # pragma: no cover (compiled)
+def _cull_clusters(low, high, pose, pixel_x, pixel_y, fx, fy, rects, nearest):  # pragma: no cover (compiled)
     """Indices of the clusters whose boxes reach into the view (in front of the camera, inside the outermost
     pixel rays); for each, its pixel rectangle (row0, row1, col0, col1, inclusive) and nearest planar depth."""
     height, width = len(pixel_y), len(pixel_x)
-    fx = (width - 1) / (pixel_x[-1] - pixel_x[0]) if width > 1 else 1.0
-    fy = (height - 1) / (pixel_y[-1] - pixel_y[0]) if height > 1 else 1.0
     x0, x1, y0, y1 = pixel_x[0], pixel_x[-1], pixel_y[0], pixel_y[-1]
     margin = 1e-9
     inside = np.empty(len(low), np.int64)
@@ -177,8 +178,8 @@ def _occluded(rect, nearest, row_start, row_stop, inverse_depth, tiles, dirty): 
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _draw(corners, starts, order, rects, nearest, pose, pixel_x, pixel_y, row_start, row_stop, inverse_depth, winner,
-          tiles, dirty):  # pragma: no cover (compiled)
+def _draw(corners, starts, order, rects, nearest, pose, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
+          winner, tiles, dirty):  # pragma: no cover (compiled)
     """Z-buffer (by inverse planar depth 1/t, 0 = nothing) the triangles of the clusters in `order` into rows
     row_start..row_stop; `winner` gets the reordered index of the nearest triangle per pixel, or -1."""
     width = len(pixel_x)
@@ -188,9 +189,6 @@ def _draw(corners, starts, order, rects, nearest, pose, pixel_x, pixel_y, row_st
             winner[row, column] = -1
     tiles[:, :] = 0.0
     dirty[:, :] = False
-    fx = (width - 1) / (pixel_x[-1] - pixel_x[0]) if width > 1 else 1.0
-    height = len(pixel_y)
-    fy = (height - 1) / (pixel_y[-1] - pixel_y[0]) if height > 1 else 1.0
     camera = np.empty((3, 3))
     for cluster in order:
         rect = rects[cluster]

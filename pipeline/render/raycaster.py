@@ -134,7 +134,7 @@ class SceneRaycaster:
             if self.rasterize and self._clusters is None:
                 self._clusters = ClusteredMesh(self.scene.vertices, self.scene.faces)
             pixel_x, pixel_y = camera.pixel_axes()
-            rasterizer = Rasterizer(self._clusters, pixel_x, pixel_y) if self.rasterize else None
+            rasterizer = Rasterizer(self._clusters, pixel_x, pixel_y, camera.fx, camera.fy) if self.rasterize else None
             self._setup = (camera, pixel_x, pixel_y, buffers, rasterizer)
         _, pixel_x, pixel_y, hits, rasterizer = self._setup
         out = (hits.depth, hits.face, hits.barycentric, hits.normal, hits.direction)
