@@ -207,7 +207,8 @@ def run_ours(scene: Scene, poses: np.ndarray, body: Embodiment, exposure: float,
     timings = {"cast": 0.0, "buffers": 0.0, "segments": 0.0, "zarr": 0.0}
     started, cpu_started = time.perf_counter(), time.process_time()
     writer = VideoWriter(store, len(poses), body.sensor.width, body.sensor.height,
-                         video_attributes(renderer, poses, trajectory), level=ZSTD_LEVEL)
+                         video_attributes(renderer, poses, trajectory), level=ZSTD_LEVEL,
+                         background=raycaster.threads > 1)  # as the render stage writes
     for pose in poses:
         t0 = time.perf_counter()
         hits = renderer.trace(pose)

@@ -39,14 +39,16 @@ class VideoWriter:
     """Creates a video store and appends frames in blocks of whole shards.
 
     Frames are buffered up to one shard and written shard by shard, so every shard is encoded once
-    (a partial shard write would re-read and re-encode it). A full shard is encoded and written on a
-    thread of the writer's own while the caller renders the next frames (one shard at a time, in order:
-    the same bytes as writing inline; the renderer's single-threaded steps leave a core idle for it).
-    `close` waits for the writes, raises what failed, and refuses a store with missing frames.
+    (a partial shard write would re-read and re-encode it). With `background`, a full shard is encoded
+    and written on a thread of its own while the caller renders the next frames (one shard at a time, in
+    order: the same bytes as inline); for a renderer with several threads, whose single-threaded steps
+    leave a core idle, not for a 1-CPU worker, which must not use a second core. `close` waits for the
+    writes, raises what failed, and refuses a store with missing frames.
     """
 
     def __init__(self, path: Path, frames: int, width: int, height: int, attributes: dict[str, Any],
-                 arrays: tuple[str, ...] = ("rgb", "depth", "panoptic"), frames_per_shard: int = 16, level: int = 3):
+                 arrays: tuple[str, ...] = ("rgb", "depth", "panoptic"), frames_per_shard: int = 16, level: int = 3,
+                 background: bool = False):
         self.group = zarr.open_group(str(path), mode="w", zarr_format=3)
         self.group.attrs.update({"schema_version": ZARR_SCHEMA_VERSION, **attributes})
         self.shard = frames_per_shard
@@ -63,6 +65,7 @@ class VideoWriter:
             )
         self._buffer: dict[str, list[np.ndarray]] = {name: [] for name in arrays}
         self._written = 0
+        self._background = background
         self._writing: Future | None = None  # the shard being written in the background
         self.frames = frames
         self.path = Path(path)
@@ -86,7 +89,7 @@ class VideoWriter:
             self._flush()
 
     def _flush(self) -> None:
-        """Hand the buffered frames to the background writer (after the shard before them is written)."""
+        """Write the buffered frames (in the background: after the shard before them is written)."""
         count = len(self._buffer[next(iter(self.arrays))])
         if count == 0:
             return
@@ -94,7 +97,10 @@ class VideoWriter:
         for frames in self._buffer.values():
             frames.clear()
         self._wait()
-        self._writing = _shard_writer().submit(self._write, self._written, blocks)
+        if self._background:
+            self._writing = _shard_writer().submit(self._write, self._written, blocks)
+        else:
+            self._write(self._written, blocks)
         self._written += count
 
     def _write(self, start: int, blocks: dict[str, np.ndarray]) -> None:

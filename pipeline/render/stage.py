@@ -158,7 +158,8 @@ def render_video(renderer: VideoRenderer, poses: np.ndarray, store: "Path", traj
     arrays = ("rgb", "depth", "depth_clean", "panoptic") if noisy else ("rgb", "depth", "panoptic")
     writer = VideoWriter(store, len(poses), renderer.camera.width, renderer.camera.height,
                          video_attributes(renderer, poses, trajectory), arrays=arrays,
-                         frames_per_shard=frames_per_shard, level=ZSTD_LEVEL)
+                         frames_per_shard=frames_per_shard, level=ZSTD_LEVEL,
+                         background=renderer.raycaster.threads > 1)
     key = {"embodiment": embodiment.name, "video_name": trajectory["video_name"]}
     frame_stats, segments, visible_categories = [], [], {}
     for t, pose in enumerate(poses):
