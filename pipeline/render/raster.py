@@ -81,7 +81,7 @@ class Rasterizer:
         height, width = len(pixel_y), len(pixel_x)
         self.inverse_depth = np.empty((height, width), np.float32)
         self.winner = np.empty((height, width), np.int64)
-        self._tiles: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # per band (by first row): tiles, dirty flags
+        self._tiles: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}  # per band of rows: tiles, dirty flags
         self.order = np.empty(0, np.int64)
         self.rects = np.empty((len(mesh.starts) - 1, 4), np.int64)
         self.nearest = np.empty(len(mesh.starts) - 1, np.float64)
@@ -95,12 +95,13 @@ class Rasterizer:
 
     def draw_band(self, rows: slice, camera_to_world: np.ndarray) -> None:
         """Z-buffer the visible clusters into rows `rows`: the nearest reordered triangle per pixel (-1: none)."""
-        if rows.start not in self._tiles:
+        band = (rows.start, rows.stop)
+        if band not in self._tiles:
             shape = (-(-(rows.stop - rows.start) // TILE), -(-len(self.pixel_x) // TILE))
-            self._tiles[rows.start] = (np.empty(shape, np.float32), np.empty(shape, np.bool_))
+            self._tiles[band] = (np.empty(shape, np.float32), np.empty(shape, np.bool_))
         _draw(self.mesh.corners, self.mesh.starts, self.order, self.rects, self.nearest,
               np.ascontiguousarray(camera_to_world, np.float64), self.pixel_x, self.pixel_y, *self.focal, rows.start,
-              rows.stop, self.inverse_depth, self.winner, *self._tiles[rows.start])
+              rows.stop, self.inverse_depth, self.winner, *self._tiles[band])
 
     def resolve_band(self, rows: slice, camera_to_world: np.ndarray, miss: int, out: tuple[np.ndarray, ...]) -> None:
         """Intersect each pixel's ray of rows `rows` with its winning triangle, into `out` = (depth, face,
