@@ -124,3 +124,19 @@ def test_the_z_buffer_sees_triangles_reaching_behind_the_camera_and_nearer_than_
     assert set(np.unique(rays["face"])) == {0, 1, 2, 3, 4}  # both squares' triangles, both floor's, misses
     hit = rays["hit"]
     assert np.abs(raster["depth"][hit] - rays["depth"][hit]).max() <= 1e-5
+
+
+def test_z_buffer_bands_of_any_split_give_the_same_hits() -> None:
+    from pipeline.render.raster import ClusteredMesh, Rasterizer
+    from tests.render.tiny_scenes import look_at, room_scene
+
+    scene, camera = room_scene(), Camera(96, 71, 60.0, 60.0, 47.3, 35.9)
+    pose = look_at(np.array([0.3, 1.0, -1.5]), np.array([0.5, 0.7, 1.0]))
+    rasterizer = Rasterizer(ClusteredMesh(scene.vertices, scene.faces), *camera.pixel_axes(), camera.fx, camera.fy)
+    rasterizer.visible_clusters(pose)
+    winners = []
+    for split in ([slice(0, 20), slice(20, 71)], [slice(0, 71)], [slice(0, 35), slice(35, 71)]):  # reused starts
+        for band in split:
+            rasterizer.draw_band(band, pose)
+        winners.append(rasterizer.winner.copy())
+    assert (winners[0] >= 0).all() and all(np.array_equal(winners[0], other) for other in winners[1:])
