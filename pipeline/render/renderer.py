@@ -86,10 +86,10 @@ class VideoRenderer:
         light = embodiment.illumination
         self.indirect = (IndirectGather(self.raycaster.mesh, self.colors, light, seed, self.raycaster.threads)
                          if light.kind == "spot" and light.indirect.bounces > 0 else None)
+        self._lights: tuple[np.ndarray, Future] | None = None  # (pose, its virtual lights being traced)
         # Frames are shaded in row bands: a band's temporaries stay in the core's cache (4 bands of a 640x480
         # frame: 12 % faster than whole frames), and with several cast threads the bands run in parallel
         # (numpy releases the GIL: 2 threads take ~60 % of the time). A 1-CPU worker runs them inline.
-        self._lights: tuple[np.ndarray, Future] | None = None  # (pose, its virtual lights being traced)
         self._bands = [(rows, Shader(embodiment.illumination, exposure, self.ray_lengths[rows], rows.start))
                        for rows in row_bands(self.camera.height, max(MIN_BANDS, self.raycaster.threads))]
 
