@@ -410,9 +410,20 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="runs of the parallel-workers measurement (median kept)")
     parser.add_argument("--workers", action=argparse.BooleanOptionalAction, default=True,
                         help="also measure one 1-thread worker process per CPU rendering at the same time")
+    parser.add_argument("--primary-only", action="store_true", help="only the z-buffer against the Embree cast "
+                        "(agreement, CPU and wall); writes results/render_primary.json")
     args = parser.parse_args()
 
     folder = Path(tempfile.mkdtemp(prefix="bench_render_"))
+    if args.primary_only:
+        scene, all_poses, pose_source = planned_poses(args.frames, folder)
+        shutil.rmtree(folder, ignore_errors=True)
+        result = {"scene": {"triangles": scene.triangle_count, "poses": pose_source},
+                  **primary_visibility(scene, spread(all_poses, args.frames), camera_of(spot_body()))}
+        out = Path(__file__).resolve().parent / "results" / "render_primary.json"
+        out.write_text(json.dumps(result, indent=1) + "\n")
+        print(json.dumps(result, indent=1))
+        return
     started = time.perf_counter()
     body = spot_body()
     try:
