@@ -186,15 +186,17 @@ def main() -> None:
     parser.add_argument("--reference-floor", action="store_true", help="render the reference of poses "
                         f"{REFERENCE_FLOOR['poses']} anew with another seed (its own noise floor; cached otherwise)")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--speed-only", action="store_true", help="only ours against Mitsuba direct 1 spp (no "
+                        "Cycles, no quality); writes results/light_speed.json")
     args = parser.parse_args()
 
     folder = Path(tempfile.mkdtemp(prefix="bench_light_"))
     RESULTS.mkdir(parents=True, exist_ok=True)
     try:
-        result = measure(args, folder)
+        result = measure_speed_only(args, folder) if args.speed_only else measure(args, folder)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
-    out = HERE / "results" / "light.json"
+    out = HERE / "results" / ("light_speed.json" if args.speed_only else "light.json")
     out.write_text(json.dumps(result, indent=1) + "\n")
     print(json.dumps({k: v for k, v in result.items() if k not in ("poses",)}, indent=1))
     print(f"wrote {out}")
@@ -245,6 +247,20 @@ def measure(args: argparse.Namespace, folder: Path) -> dict[str, Any]:
             "poses": REFERENCE_FLOOR["poses"], **compare(floor, [reference[i] for i in REFERENCE_FLOOR["poses"]])}
     result["quality"] = quality
     result["speed"] = measure_speed(scene, speed_poses, args, folder, cycles_ok)
+    result["targets"] = targets(result)
+    return result
+
+
+def measure_speed_only(args: argparse.Namespace, folder: Path) -> dict[str, Any]:
+    """The speed part of `measure`: ours end to end against Mitsuba direct 1 spp, same poses, same run."""
+    scene, all_poses, pose_source = planned_poses(args.speed_frames, folder)
+    speed_poses = spread(all_poses, args.speed_frames)
+    # The peer times the poses after the first `args.poses` (the quality poses in a full run).
+    export(scene, np.concatenate([speed_poses[: args.poses], speed_poses]), folder / "peer", [], [], args.threads)
+    result: dict[str, Any] = {"scene": {"triangles": scene.triangle_count, "poses": pose_source},
+                              "resolution": [640, 480], "threads": args.threads, "speed_frames": len(speed_poses),
+                              "ours": mvpd_spot().model_dump(mode="json"), "quality": {}}
+    result["speed"] = measure_speed(scene, speed_poses, args, folder, cycles_ok=False)
     result["targets"] = targets(result)
     return result
 

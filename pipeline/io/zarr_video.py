@@ -8,6 +8,8 @@ else the writer passes. Stores are written in a staging folder and committed who
 
 from __future__ import annotations
 
+import functools
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,11 +39,16 @@ class VideoWriter:
     """Creates a video store and appends frames in blocks of whole shards.
 
     Frames are buffered up to one shard and written shard by shard, so every shard is encoded once
-    (a partial shard write would re-read and re-encode it). `close` refuses a store with missing frames.
+    (a partial shard write would re-read and re-encode it). With `background`, a full shard is encoded
+    and written on a thread of its own while the caller renders the next frames (one shard at a time, in
+    order: the same bytes as inline); for a renderer with several threads, whose single-threaded steps
+    leave a core idle, not for a 1-CPU worker, which must not use a second core. `close` waits for the
+    writes, raises what failed, and refuses a store with missing frames.
     """
 
     def __init__(self, path: Path, frames: int, width: int, height: int, attributes: dict[str, Any],
-                 arrays: tuple[str, ...] = ("rgb", "depth", "panoptic"), frames_per_shard: int = 16, level: int = 3):
+                 arrays: tuple[str, ...] = ("rgb", "depth", "panoptic"), frames_per_shard: int = 16, level: int = 3,
+                 background: bool = False):
         self.group = zarr.open_group(str(path), mode="w", zarr_format=3)
         self.group.attrs.update({"schema_version": ZARR_SCHEMA_VERSION, **attributes})
         self.shard = frames_per_shard
@@ -58,6 +65,8 @@ class VideoWriter:
             )
         self._buffer: dict[str, list[np.ndarray]] = {name: [] for name in arrays}
         self._written = 0
+        self._background = background
+        self._writing: Future | None = None  # the shard being written in the background
         self.frames = frames
         self.path = Path(path)
 
@@ -80,21 +89,44 @@ class VideoWriter:
             self._flush()
 
     def _flush(self) -> None:
+        """Write the buffered frames (in the background: after the shard before them is written)."""
         count = len(self._buffer[next(iter(self.arrays))])
         if count == 0:
             return
-        for name, array in self.arrays.items():
-            array[self._written:self._written + count] = np.stack(self._buffer[name])
-            self._buffer[name].clear()
+        blocks = {name: np.stack(self._buffer[name]) for name in self.arrays}
+        for frames in self._buffer.values():
+            frames.clear()
+        self._wait()
+        if self._background:
+            self._writing = _shard_writer().submit(self._write, self._written, blocks)
+        else:
+            self._write(self._written, blocks)
         self._written += count
+
+    def _write(self, start: int, blocks: dict[str, np.ndarray]) -> None:
+        for name, block in blocks.items():
+            self.arrays[name][start:start + len(block)] = block
+
+    def _wait(self) -> None:
+        """Wait for the shard being written; raise what its write raised."""
+        if self._writing is not None:
+            writing, self._writing = self._writing, None
+            writing.result()
 
     def close(self) -> int:
         """Write what is buffered; returns the number of frames written (all of them, or it raises)."""
         self._flush()
+        self._wait()
         if self._written != self.frames:
             raise VideoWriteError(f"{self.path}: {self._written} of {self.frames} frames written; "
                                   "the video is incomplete (render every pose before closing)")
         return self._written
+
+
+@functools.cache
+def _shard_writer() -> ThreadPoolExecutor:
+    """The process's one thread that encodes and writes shards behind the render loop."""
+    return ThreadPoolExecutor(max_workers=1, thread_name_prefix="zarr-shards")
 
 
 @dataclass

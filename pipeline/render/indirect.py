@@ -210,11 +210,13 @@ class IndirectGather:
         self._near_field(points, normals, eyes[None], depth, numbers, camera_to_world, out)
         return out[0]
 
-    def irradiance(self, hits: RayHits, camera_to_world: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    def irradiance(self, hits: RayHits, camera_to_world: np.ndarray, out: np.ndarray | None = None,
+                   lights: VirtualLights | None = None) -> np.ndarray:
         """(ceil(H / INDIRECT_BLOCK), ceil(W / INDIRECT_BLOCK), 6) float32 indirect light: one value per
         INDIRECT_BLOCK x INDIRECT_BLOCK pixels, at the surface of the block's first pixel, 0 where that pixel
-        hit nothing: irradiance E (W/m^2, RGB) and glossy term G (RGB), as `irradiance_at`."""
-        lights = self.virtual_lights(camera_to_world)
+        hit nothing: irradiance E (W/m^2, RGB) and glossy term G (RGB), as `irradiance_at`. `lights`: this
+        pose's `virtual_lights`, when already traced (the renderer traces them beside the camera rays)."""
+        lights = self.virtual_lights(camera_to_world) if lights is None else lights
         order = np.argsort(lights.groups, kind="stable")
         group_count = self.settings.interleave ** 2
         starts = np.searchsorted(lights.groups[order], np.arange(group_count + 1)).astype(np.int64)

@@ -1,8 +1,11 @@
-"""CPU ray casting of a labelled scene: one Embree BVH per scene, traced in 8-ray packets (embree.py).
+"""The camera rays' hits in a labelled scene: found by a z-buffer (raster.py), or cast into one Embree BVH
+per scene in 8-ray packets (embree.py), which also serves every other ray (the bounces of indirect light).
 
-Why ray casting: on plain CPUs Embree traces a 640x480 frame of a 1 M-triangle house in tens of
-milliseconds, and each hit gives the exact triangle, so labels never blend across objects and depth is
-exact (no depth-buffer quantisation, no anti-aliasing between ids).
+Why per-ray hits: each pixel gets the exact triangle, so labels never blend across objects and depth is
+exact (no depth-buffer quantisation, no anti-aliasing between ids). The z-buffer finds the same triangle
+as the ray (99.999 % of pixels; the rest are ties on shared edges) and intersects the pixel's ray with it,
+for 0.8x the CPU time and 0.83x the wall time of the packet cast on the 1 M-triangle benchmark house with
+2 threads (benchmarks/bench_render.py `primary_visibility`; ~0.7x the CPU time on one thread).
 
 Rays go through pixel centres (u + 0.5, v + 0.5) (schemas/README.md). Camera-frame ray directions are
 (x, y, 1) with x = (u + 0.5 - cx) / fx and y = (v + 0.5 - cy) / fy, i.e. NOT normalised: Embree's hit
@@ -20,6 +23,7 @@ import numpy as np
 
 from pipeline.render.camera import pixel_rays
 from pipeline.render.embree import EmbreeMesh
+from pipeline.render.raster import ClusteredMesh, Rasterizer
 from pipeline.scenes.scene import Scene
 
 
@@ -100,16 +104,19 @@ class SceneRaycaster:
         scene: the labelled mesh (world frame).
         threads: threads per cast (each traces a band of rows); 0 = `available_cpus()` (the task's CPUs
             under Ray), never the host's core count, which oversubscribes a container.
+        rasterize: find the camera rays' hits with the z-buffer (raster.py) instead of Embree packets.
     """
 
-    def __init__(self, scene: Scene, threads: int = 0):
+    def __init__(self, scene: Scene, threads: int = 0, rasterize: bool = True):
         self.scene = scene
         self.threads = threads or available_cpus()
         self.miss_index = len(scene.faces)
+        self.rasterize = rasterize
         self._bvh = EmbreeMesh(scene.vertices, scene.faces)
-        # Per camera (fixed for a video): the pixel axes and the output buffers reused from frame to frame
-        # (fresh multi-megabyte arrays cost page faults every frame).
-        self._setup: tuple[Camera, np.ndarray, np.ndarray, RayHits] | None = None
+        self._clusters: ClusteredMesh | None = None  # built on the first cast (~1 s per 1 M triangles)
+        # Per camera (fixed for a video): the pixel axes, the output buffers reused from frame to frame
+        # (fresh multi-megabyte arrays cost page faults every frame) and the rasterizer with its z-buffer.
+        self._setup: tuple[Camera, np.ndarray, np.ndarray, RayHits, Rasterizer | None] | None = None
 
     @property
     def mesh(self) -> EmbreeMesh:
@@ -125,13 +132,23 @@ class SceneRaycaster:
             shape = (camera.height, camera.width)
             buffers = RayHits(np.empty(shape, np.float32), np.empty(shape, np.intp), np.empty((*shape, 2), np.float32),
                               np.empty((*shape, 3), np.float32), np.empty((*shape, 3), np.float32), np.empty(shape, bool))
-            self._setup = (camera, *camera.pixel_axes(), buffers)
-        _, pixel_x, pixel_y, hits = self._setup
+            if self.rasterize and self._clusters is None:
+                self._clusters = ClusteredMesh(self.scene.vertices, self.scene.faces)
+            pixel_x, pixel_y = camera.pixel_axes()
+            rasterizer = Rasterizer(self._clusters, pixel_x, pixel_y, camera.fx, camera.fy) if self.rasterize else None
+            self._setup = (camera, pixel_x, pixel_y, buffers, rasterizer)
+        _, pixel_x, pixel_y, hits, rasterizer = self._setup
         out = (hits.depth, hits.face, hits.barycentric, hits.normal, hits.direction)
 
         def trace(rows: slice) -> None:
-            self._bvh.cast_rows(rows, pixel_x, pixel_y, camera_to_world, self.miss_index, out)
+            if rasterizer is None:
+                self._bvh.cast_rows(rows, pixel_x, pixel_y, camera_to_world, self.miss_index, out)
+                return
+            rasterizer.draw_band(rows, camera_to_world)
+            rasterizer.resolve_band(rows, camera_to_world, self.miss_index, out)
 
+        if rasterizer is not None:
+            rasterizer.visible_clusters(camera_to_world)
         bands = row_bands(camera.height, self.threads)
         if len(bands) == 1:
             trace(bands[0])

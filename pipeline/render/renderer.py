@@ -6,6 +6,8 @@ one ray cast plus vectorised numpy. The per-frame `segments` rows come from `pip
 
 from __future__ import annotations
 
+import functools
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -13,7 +15,7 @@ import numpy as np
 
 from pipeline.config import Embodiment
 from pipeline.lazy_import import lazy_module
-from pipeline.render.indirect import IndirectGather
+from pipeline.render.indirect import IndirectGather, VirtualLights
 from pipeline.render.lighting import Shader, SurfaceColors
 from pipeline.render.raycaster import Camera, RayHits, SceneRaycaster, row_bands, thread_pool
 from pipeline.render.sensors import StructuredLightModel, depth_to_millimetres, sensor_model
@@ -84,6 +86,7 @@ class VideoRenderer:
         light = embodiment.illumination
         self.indirect = (IndirectGather(self.raycaster.mesh, self.colors, light, seed, self.raycaster.threads)
                          if light.kind == "spot" and light.indirect.bounces > 0 else None)
+        self._lights: tuple[np.ndarray, Future] | None = None  # (pose, its virtual lights being traced)
         # Frames are shaded in row bands: a band's temporaries stay in the core's cache (4 bands of a 640x480
         # frame: 12 % faster than whole frames), and with several cast threads the bands run in parallel
         # (numpy releases the GIL: 2 threads take ~60 % of the time). A 1-CPU worker runs them inline.
@@ -91,7 +94,13 @@ class VideoRenderer:
                        for rows in row_bands(self.camera.height, max(MIN_BANDS, self.raycaster.threads))]
 
     def trace(self, camera_to_world: np.ndarray) -> RayHits:
-        """Ray cast one pose; hits outside the clip range [near, far] become misses (void, black, 0 mm)."""
+        """Ray cast one pose; hits outside the clip range [near, far] become misses (void, black, 0 mm).
+
+        With indirect light and several threads, the spot's virtual lights of the pose (which need no camera
+        hit) are traced on a thread of their own meanwhile: their single-threaded numpy would leave a core idle."""
+        if self.indirect is not None and self.raycaster.threads > 1:  # (a 1-CPU worker keeps to its core)
+            pose = np.array(camera_to_world, np.float64)
+            self._lights = (pose, _light_tracer().submit(self.indirect.virtual_lights, pose))
         hits = self.raycaster.cast(self.camera, camera_to_world)
         sensor = self.embodiment.sensor
         inside = hits.depth >= sensor.near  # a miss (inf) fails the far test below
@@ -120,7 +129,7 @@ class VideoRenderer:
         if self.indirect is not None:
             if camera_to_world is None:
                 raise ValueError("indirect light traces from the spot: pass the pose of the hits (camera_to_world)")
-            indirect = self.indirect.irradiance(hits, camera_to_world)
+            indirect = self.indirect.irradiance(hits, camera_to_world, lights=self._traced_lights(camera_to_world))
         bands = range(len(self._bands))
         if self.raycaster.threads == 1:
             for band in bands:
@@ -136,6 +145,12 @@ class VideoRenderer:
         frame.depth_clean, frame.depth = frame.depth, depth_to_millimetres(noisy, sensor.near, sensor.far)
         return frame
 
+    def _traced_lights(self, camera_to_world: np.ndarray) -> VirtualLights | None:
+        """The virtual lights `trace` started for this pose (None when it traced another pose)."""
+        pose, lights = self._lights if self._lights is not None else (None, None)
+        self._lights = None
+        return lights.result() if pose is not None and np.array_equal(pose, camera_to_world) else None
+
     def _fill_band(self, hits: RayHits, band: int, frame: RenderedFrame, indirect: np.ndarray | None = None) -> None:
         """Write the RGB, clean depth (mm), panoptic ids and dense labels of the rows of one band into `frame`."""
         rows, shader = self._bands[band]
@@ -146,6 +161,12 @@ class VideoRenderer:
         # A miss (face F) picks the trailing 0 (void) of both tables; "clip" writes straight into `out`.
         np.take(self.labels.object_ids, hits.face, out=frame.panoptic[rows], mode="clip")
         np.take(self.labels.dense_of_face, hits.face, out=frame.dense[rows], mode="clip")  # type: ignore[index]
+
+
+@functools.cache
+def _light_tracer() -> ThreadPoolExecutor:
+    """The thread that traces a frame's virtual lights while its camera rays are cast."""
+    return ThreadPoolExecutor(max_workers=1, thread_name_prefix="virtual-lights")
 
 
 def limit_worker_threads(threads: int) -> None:

@@ -34,7 +34,9 @@ if TYPE_CHECKING:
 # Bump when the rendered pixels change for the same inputs (part of every unit's config hash).
 # 2: rays and spot scale computed in another float32 order (a few pixels per frame differ by 1-2 levels).
 # 3: Embree 4 packets instead of open3d's single rays (a few pixels per frame hit the other triangle of a shared edge).
-RENDER_ALGORITHM_VERSION = 3
+# 4: camera hits from the clustered z-buffer (raster.py): again a few pixels per frame on shared edges, and
+#    depth / barycentrics within float32 rounding of the ray cast's.
+RENDER_ALGORITHM_VERSION = 4
 # zstd level of the Zarr arrays. Measured on the detail-1.0 house at 640x480, zstd alone per frame
 # (rgb + depth + panoptic; spot / ambient light): level 1: 154 / 79 kB, 2.5 / 1.4 ms (over the 150 kB
 # budget); 3: 146 / 75 kB, 3.1 / 1.7 ms; 5: 128 / 67 kB, 7.4 / 5.6 ms. Zarr's own work adds ~2-3 ms.
@@ -158,7 +160,8 @@ def render_video(renderer: VideoRenderer, poses: np.ndarray, store: "Path", traj
     arrays = ("rgb", "depth", "depth_clean", "panoptic") if noisy else ("rgb", "depth", "panoptic")
     writer = VideoWriter(store, len(poses), renderer.camera.width, renderer.camera.height,
                          video_attributes(renderer, poses, trajectory), arrays=arrays,
-                         frames_per_shard=frames_per_shard, level=ZSTD_LEVEL)
+                         frames_per_shard=frames_per_shard, level=ZSTD_LEVEL,
+                         background=renderer.raycaster.threads > 1)
     key = {"embodiment": embodiment.name, "video_name": trajectory["video_name"]}
     frame_stats, segments, visible_categories = [], [], {}
     for t, pose in enumerate(poses):

@@ -18,11 +18,11 @@ def _frames(count: int, seed: int = 0) -> list[dict[str, np.ndarray]]:
              "panoptic": rng.integers(0, 2**32, (6, 8), dtype=np.uint32)} for _ in range(count)]
 
 
-def _write(path: Path, frames: list[dict[str, np.ndarray]], shard: int = 4) -> None:
+def _write(path: Path, frames: list[dict[str, np.ndarray]], shard: int = 4, background: bool = False) -> None:
     poses = np.tile(np.eye(4), (len(frames), 1, 1)).tolist()
     writer = VideoWriter(path, len(frames), 8, 6, {"video_name": "v", "poses": poses,
                                                   "intrinsics": {"fx": 1.0, "fy": 1.0, "cx": 4.0, "cy": 3.0}},
-                         frames_per_shard=shard)
+                         frames_per_shard=shard, background=background)
     for frame in frames:
         writer.append(**frame)
     assert writer.close() == len(frames)
@@ -46,9 +46,11 @@ def test_round_trip_and_layout(tmp_path: Path, count: int) -> None:
     assert len(shard_files) == -(-count // 4)
 
 
-def test_same_frames_give_identical_bytes(tmp_path: Path) -> None:
-    _write(tmp_path / "a.zarr", _frames(5))
-    _write(tmp_path / "b.zarr", _frames(5))
+@pytest.mark.parametrize("background", [False, True])
+def test_same_frames_give_identical_bytes(tmp_path: Path, background: bool) -> None:
+    # Shards written on the writer's thread while frames arrive are the bytes of shards written inline.
+    _write(tmp_path / "a.zarr", _frames(11))
+    _write(tmp_path / "b.zarr", _frames(11), background=background)
     files = sorted(p.relative_to(tmp_path / "a.zarr") for p in (tmp_path / "a.zarr").rglob("*") if p.is_file())
     assert files and all((tmp_path / "a.zarr" / f).read_bytes() == (tmp_path / "b.zarr" / f).read_bytes() for f in files)
 

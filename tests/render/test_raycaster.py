@@ -78,3 +78,65 @@ def test_threads_trace_the_same_hits_as_one_thread() -> None:
     for name in ("depth", "face", "barycentric", "normal", "direction", "hit"):
         assert np.array_equal(getattr(one, name), getattr(three, name)), name
     assert one.hit.any() and not one.hit.all()
+
+
+def _both_casts(scene, camera: Camera, pose: np.ndarray) -> tuple:
+    """The hits of the z-buffer and of the Embree packets (copies: each caster reuses its buffers)."""
+    casts = []
+    for rasterize in (True, False):
+        hits = SceneRaycaster(scene, threads=2, rasterize=rasterize).cast(camera, pose)
+        casts.append({name: getattr(hits, name).copy() for name in ("depth", "face", "barycentric", "normal",
+                                                                      "direction", "hit")})
+    return casts[0], casts[1]
+
+
+def test_the_z_buffer_finds_the_hits_of_the_ray_cast() -> None:
+    from tests.render.tiny_scenes import look_at, room_scene
+
+    scene, camera = room_scene(), Camera(96, 71, 60.0, 60.0, 47.3, 35.9)
+    for position, target in (([0.3, 1.0, -1.5], [0.5, 0.7, 1.0]), ([-1.0, 1.6, 1.0], [1.0, 0.2, -1.0]),
+                             ([0.0, 0.05, 0.0], [0.0, 1.0, 2.0])):  # the last one grazes the floor
+        raster, rays = _both_casts(scene, camera, look_at(np.array(position), np.array(target)))
+        assert np.array_equal(raster["hit"], rays["hit"]) and raster["hit"].any()
+        same = raster["face"] == rays["face"]
+        assert same.mean() >= 0.999  # the rest: ties on shared edges
+        both = same & rays["hit"]
+        for name, tolerance in (("depth", 1e-5), ("barycentric", 1e-4), ("normal", 1e-6)):
+            assert np.abs(raster[name][both] - rays[name][both]).max() <= tolerance, name
+        assert np.array_equal(raster["direction"], rays["direction"])
+
+
+def test_the_z_buffer_sees_triangles_reaching_behind_the_camera_and_nearer_than_near() -> None:
+    # A floor under the camera reaches 5 m behind it (the z-buffer clips nothing), and a small square 5 mm in
+    # front of the camera is hit as the ray cast hits it (VideoRenderer.trace then makes it a miss).
+    from pipeline.scenes.scene import Scene, SceneObject
+
+    low, high, floor = -0.001, 0.002, 5.0
+    vertices = np.array([[low, low, 0.005], [high, low, 0.005], [high, high, 0.005],
+                         [low, high, 0.005], [-floor, 0.5, -floor], [floor, 0.5, -floor], [floor, 0.5, floor],
+                         [-floor, 0.5, floor]], np.float32)
+    faces = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]], np.int32)
+    scene = Scene("near", vertices, faces, np.array([5, 5, 7, 7], np.uint32),
+                  {5: SceneObject(5, "square", 39), 7: SceneObject(7, "floor", 2)},
+                  vertex_colors=np.full((8, 3), 200, np.uint8))
+    raster, rays = _both_casts(scene, Camera(64, 48, 30.0, 30.0, 31.7, 23.2), np.eye(4))
+    assert np.array_equal(raster["face"], rays["face"]) and np.array_equal(raster["hit"], rays["hit"])
+    assert set(np.unique(rays["face"])) == {0, 1, 2, 3, 4}  # both squares' triangles, both floor's, misses
+    hit = rays["hit"]
+    assert np.abs(raster["depth"][hit] - rays["depth"][hit]).max() <= 1e-5
+
+
+def test_z_buffer_bands_of_any_split_give_the_same_hits() -> None:
+    from pipeline.render.raster import ClusteredMesh, Rasterizer
+    from tests.render.tiny_scenes import look_at, room_scene
+
+    scene, camera = room_scene(), Camera(96, 71, 60.0, 60.0, 47.3, 35.9)
+    pose = look_at(np.array([0.3, 1.0, -1.5]), np.array([0.5, 0.7, 1.0]))
+    rasterizer = Rasterizer(ClusteredMesh(scene.vertices, scene.faces), *camera.pixel_axes(), camera.fx, camera.fy)
+    rasterizer.visible_clusters(pose)
+    winners = []
+    for split in ([slice(0, 20), slice(20, 71)], [slice(0, 71)], [slice(0, 35), slice(35, 71)]):  # reused starts
+        for band in split:
+            rasterizer.draw_band(band, pose)
+        winners.append(rasterizer.winner.copy())
+    assert (winners[0] >= 0).all() and all(np.array_equal(winners[0], other) for other in winners[1:])

@@ -105,3 +105,19 @@ def test_row_bands_render_exactly_like_the_whole_frame() -> None:
             assert np.array_equal(frame.panoptic, renderer.labels.object_ids[hits.face])
             assert np.array_equal(frame.dense, renderer.labels.dense_of_face[hits.face])
             assert frame.rgb.any() and frame.panoptic.any()
+
+
+def test_several_threads_render_the_bytes_of_one_with_indirect_light() -> None:
+    # With several threads the camera rays are rasterised in bands and the spot's virtual lights are traced
+    # on a thread of their own meanwhile; neither may change a byte against one thread doing it all in turn.
+    from pipeline.config import Illumination, IndirectLight
+    from pipeline.render.raycaster import SceneRaycaster
+
+    light = Illumination(kind="spot", power=20.0, material="principled", indirect=IndirectLight(
+        bounces=2, virtual_lights=256, gather_stride=4, interleave=2, clamp_distance=0.1))
+    scene, body = room_scene(), embodiment(width=96, height=71, light=light)
+    frames = []
+    for threads in (1, 3):
+        renderer = VideoRenderer(scene, body, exposure=2.0, raycaster=SceneRaycaster(scene, threads=threads), seed=3)
+        frames.append([renderer.render(pose).rgb.copy() for pose in _poses(3)])
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(*frames)) and frames[0][1].any()

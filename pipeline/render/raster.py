@@ -1,0 +1,334 @@
+"""Primary visibility by rasterization: the camera rays' hits, found by a z-buffer instead of a BVH walk.
+
+Why: a camera ray per pixel costs a BVH walk per pixel (~60 ms of CPU for 640x480 on a 1 M-triangle
+house), while a z-buffer pays per visible triangle. The mesh is split once into clusters of nearby
+triangles; per frame, clusters outside the view are dropped, the rest are drawn nearest first, and a
+cluster whose box lies behind everything already drawn in the 8 x 8-pixel tiles it covers is skipped
+(occlusion culling), so the triangles of rooms behind walls are never set up.
+
+The coverage test is the ray-triangle test itself, not a projection: with a, b, c the corners relative
+to the camera, the ray d of a pixel centre hits the triangle at t > 0 exactly when det(a, b, d),
+det(b, c, d) and det(c, a, d) all have the sign of det(a, b, c) (homogeneous rasterization, Olano and
+Greer 1997). No clipping is needed (corners behind the camera are fine), hits nearer than the sensor's
+`near` are found like the ray cast finds them (VideoRenderer.trace turns them into misses), and a shared
+edge is computed bit for bit alike (negated) by both its triangles, so no pixel falls between them (ties
+on the edge go to the triangle drawn first). The winning triangle of each pixel is then intersected with
+the pixel's ray by Embree's own Moeller-Trumbore arithmetic in float32, so depth, barycentrics and normal
+are the ray cast's to float precision (measured in benchmarks/bench_render.py).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+CLUSTER_SIZE = 64  # triangles per cluster: small boxes cull well, and 16 k clusters per 1 M triangles test fast
+NARROW = 6  # triangles at most this many pixels wide test every pixel of their rows (no span arithmetic)
+TILE = 8  # pixels per side of the occlusion tiles
+_BEHIND = 1e-6  # metres: a cluster corner nearer than this to the camera plane makes the cluster cover the image
+
+
+class ClusteredMesh:
+    """A triangle mesh reordered into spatially compact clusters (Morton order of the triangle centres).
+
+    Attributes:
+        corners: (F, 3, 3) float32 triangle corners, cluster by cluster.
+        face_ids: (F,) int64 index of each reordered triangle in the original mesh.
+        starts: (C + 1,) first triangle of each cluster.
+        low, high: (C, 3) float64 bounding boxes of the clusters.
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        corners = np.asarray(vertices, np.float32)[np.asarray(faces, np.int64)]
+        centres = corners.mean(axis=1, dtype=np.float64)
+        self.face_ids = np.argsort(_morton_codes(centres), kind="stable")
+        self.corners = np.ascontiguousarray(corners[self.face_ids])
+        self.starts = np.append(np.arange(0, len(faces), CLUSTER_SIZE), len(faces)).astype(np.int64)
+        self.low = np.minimum.reduceat(self.corners.min(axis=1), self.starts[:-1]).astype(np.float64)
+        self.high = np.maximum.reduceat(self.corners.max(axis=1), self.starts[:-1]).astype(np.float64)
+
+
+def _morton_codes(points: np.ndarray) -> np.ndarray:
+    """63-bit Morton codes of points quantised to 2^21 steps of their bounding box per axis."""
+    low, high = points.min(axis=0), points.max(axis=0)
+    cells = ((points - low) / np.maximum(high - low, 1e-12) * (2**21 - 1)).astype(np.uint64)
+    return _spread_bits(cells[:, 0]) | _spread_bits(cells[:, 1]) << np.uint64(1) | _spread_bits(cells[:, 2]) << np.uint64(2)
+
+
+def _spread_bits(values: np.ndarray) -> np.ndarray:
+    """21-bit integers with two zero bits inserted after each bit (bit k moves to bit 3 k)."""
+    values = values & np.uint64(0x1FFFFF)
+    for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
+                        (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
+        values = (values | values << np.uint64(shift)) & np.uint64(mask)
+    return values
+
+
+class Rasterizer:
+    """Primary hits of one camera on one clustered mesh, in row bands (each band an independent z-buffer).
+
+    Buffers are per camera and reused from frame to frame; `visible_clusters` runs once per frame, then
+    `draw_band` and `resolve_band` may run on different bands in parallel (they release the GIL).
+    """
+
+    def __init__(self, mesh: ClusteredMesh, pixel_x: np.ndarray, pixel_y: np.ndarray, fx: float, fy: float):
+        """`pixel_x`, `pixel_y`: camera-frame x / z per column and y / z per row of the pixel centres
+        (`Camera.pixel_axes`); `fx`, `fy`: the focal lengths in pixels (columns per unit of x / z)."""
+        self.mesh = mesh
+        self.focal = (float(fx), float(fy))
+        self.pixel_x = np.ascontiguousarray(pixel_x, np.float64)
+        self.pixel_y = np.ascontiguousarray(pixel_y, np.float64)
+        height, width = len(pixel_y), len(pixel_x)
+        self.inverse_depth = np.empty((height, width), np.float32)
+        self.winner = np.empty((height, width), np.int64)
+        self._tiles: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}  # per band of rows: tiles, dirty flags
+        self.order = np.empty(0, np.int64)
+        self.rects = np.empty((len(mesh.starts) - 1, 4), np.int64)
+        self.nearest = np.empty(len(mesh.starts) - 1, np.float64)
+
+    def visible_clusters(self, camera_to_world: np.ndarray) -> None:
+        """The clusters inside the view, nearest first, with their pixel rectangles (for `draw_band`)."""
+        pose = np.ascontiguousarray(camera_to_world, np.float64)
+        inside = _cull_clusters(self.mesh.low, self.mesh.high, pose, self.pixel_x, self.pixel_y, *self.focal,
+                                self.rects, self.nearest)
+        self.order = inside[np.argsort(self.nearest[inside], kind="stable")]
+
+    def draw_band(self, rows: slice, camera_to_world: np.ndarray) -> None:
+        """Z-buffer the visible clusters into rows `rows`: the nearest reordered triangle per pixel (-1: none)."""
+        band = (rows.start, rows.stop)
+        if band not in self._tiles:
+            shape = (-(-(rows.stop - rows.start) // TILE), -(-len(self.pixel_x) // TILE))
+            self._tiles[band] = (np.empty(shape, np.float32), np.empty(shape, np.bool_))
+        _draw(self.mesh.corners, self.mesh.starts, self.order, self.rects, self.nearest,
+              np.ascontiguousarray(camera_to_world, np.float64), self.pixel_x, self.pixel_y, *self.focal, rows.start,
+              rows.stop, self.inverse_depth, self.winner, *self._tiles[band])
+
+    def resolve_band(self, rows: slice, camera_to_world: np.ndarray, miss: int, out: tuple[np.ndarray, ...]) -> None:
+        """Intersect each pixel's ray of rows `rows` with its winning triangle, into `out` = (depth, face,
+        barycentric, normal, direction) as `EmbreeMesh.cast_rows` fills them."""
+        _resolve(self.mesh.corners, self.mesh.face_ids, self.winner, np.ascontiguousarray(camera_to_world, np.float64),
+                 self.pixel_x, self.pixel_y, rows.start, rows.stop, miss, *out)
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _cull_clusters(low, high, pose, pixel_x, pixel_y, fx, fy, rects, nearest):  # pragma: no cover (compiled)
+    """Indices of the clusters whose boxes reach into the view (in front of the camera, inside the outermost
+    pixel rays); for each, its pixel rectangle (row0, row1, col0, col1, inclusive) and nearest planar depth."""
+    height, width = len(pixel_y), len(pixel_x)
+    x0, x1, y0, y1 = pixel_x[0], pixel_x[-1], pixel_y[0], pixel_y[-1]
+    margin = 1e-9
+    inside = np.empty(len(low), np.int64)
+    count = 0
+    for cluster in range(len(low)):
+        z_min, z_max = np.inf, -np.inf
+        left = right = above = below = True  # every corner outside that side of the view
+        u_min, u_max, v_min, v_max = np.inf, -np.inf, np.inf, -np.inf
+        for corner in range(8):
+            px = high[cluster, 0] if corner & 1 else low[cluster, 0]
+            py = high[cluster, 1] if corner & 2 else low[cluster, 1]
+            pz = high[cluster, 2] if corner & 4 else low[cluster, 2]
+            px, py, pz = px - pose[0, 3], py - pose[1, 3], pz - pose[2, 3]
+            x = pose[0, 0] * px + pose[1, 0] * py + pose[2, 0] * pz
+            y = pose[0, 1] * px + pose[1, 1] * py + pose[2, 1] * pz
+            z = pose[0, 2] * px + pose[1, 2] * py + pose[2, 2] * pz
+            z_min, z_max = min(z_min, z), max(z_max, z)
+            left &= x < (x0 - margin) * z
+            right &= x > (x1 + margin) * z
+            above &= y < (y0 - margin) * z
+            below &= y > (y1 + margin) * z
+            if z > _BEHIND:
+                u, v = (x / z - x0) * fx, (y / z - y0) * fy
+                u_min, u_max, v_min, v_max = min(u_min, u), max(u_max, u), min(v_min, v), max(v_max, v)
+        if z_max <= 0.0 or left or right or above or below:
+            continue
+        if z_min <= _BEHIND:  # the box reaches the camera plane: it may cover any pixel
+            rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3] = 0, height - 1, 0, width - 1
+        else:
+            rects[cluster, 0] = max(int(np.floor(v_min)), 0)
+            rects[cluster, 1] = min(int(np.ceil(v_max)), height - 1)
+            rects[cluster, 2] = max(int(np.floor(u_min)), 0)
+            rects[cluster, 3] = min(int(np.ceil(u_max)), width - 1)
+            if rects[cluster, 0] > rects[cluster, 1] or rects[cluster, 2] > rects[cluster, 3]:
+                continue
+        nearest[cluster] = max(z_min, 0.0)
+        inside[count] = cluster
+        count += 1
+    return inside[:count]
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _occluded(rect, nearest, row_start, row_stop, inverse_depth, tiles, dirty):  # pragma: no cover (compiled)
+    """True when every pixel of the rectangle (within the band) already holds a surface nearer than `nearest`."""
+    if nearest <= _BEHIND:
+        return False
+    closest = np.float32(1.0 / nearest * (1.0 + 1e-5))  # the cluster's largest inverse depth, rounded up
+    width = inverse_depth.shape[1]
+    top, bottom = max(rect[0], row_start), min(rect[1], row_stop - 1)
+    for tile_row in range((top - row_start) // TILE, (bottom - row_start) // TILE + 1):
+        for tile_column in range(rect[2] // TILE, rect[3] // TILE + 1):
+            if dirty[tile_row, tile_column]:
+                farthest = np.inf
+                for row in range(row_start + tile_row * TILE, min(row_start + (tile_row + 1) * TILE, row_stop)):
+                    for column in range(tile_column * TILE, min((tile_column + 1) * TILE, width)):
+                        farthest = min(farthest, inverse_depth[row, column])
+                tiles[tile_row, tile_column] = farthest
+                dirty[tile_row, tile_column] = False
+            if tiles[tile_row, tile_column] < closest:
+                return False
+    return True
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _draw(corners, starts, order, rects, nearest, pose, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
+          winner, tiles, dirty):  # pragma: no cover (compiled)
+    """Z-buffer (by inverse planar depth 1/t, 0 = nothing) the triangles of the clusters in `order` into rows
+    row_start..row_stop; `winner` gets the reordered index of the nearest triangle per pixel, or -1."""
+    width = len(pixel_x)
+    for row in range(row_start, row_stop):
+        for column in range(width):
+            inverse_depth[row, column] = 0.0
+            winner[row, column] = -1
+    tiles[:, :] = 0.0
+    dirty[:, :] = False
+    camera = np.empty((3, 3))
+    for cluster in order:
+        rect = rects[cluster]
+        if rect[1] < row_start or rect[0] >= row_stop:
+            continue
+        if _occluded(rect, nearest[cluster], row_start, row_stop, inverse_depth, tiles, dirty):
+            continue
+        for triangle in range(starts[cluster], starts[cluster + 1]):
+            for k in range(3):  # corners in the camera frame, relative to the camera centre
+                px = np.float64(corners[triangle, k, 0]) - pose[0, 3]
+                py = np.float64(corners[triangle, k, 1]) - pose[1, 3]
+                pz = np.float64(corners[triangle, k, 2]) - pose[2, 3]
+                camera[k, 0] = pose[0, 0] * px + pose[1, 0] * py + pose[2, 0] * pz
+                camera[k, 1] = pose[0, 1] * px + pose[1, 1] * py + pose[2, 1] * pz
+                camera[k, 2] = pose[0, 2] * px + pose[1, 2] * py + pose[2, 2] * pz
+            _draw_triangle(camera, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
+                           winner, tiles, dirty)
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _edge(p, q):  # pragma: no cover (compiled)
+    """p x q: the normal of the plane through the camera centre and corners p and q."""
+    return (p[1] * q[2] - p[2] * q[1], p[2] * q[0] - p[0] * q[2], p[0] * q[1] - p[1] * q[0])
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _draw_triangle(camera, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth, winner,
+                   tiles, dirty):  # pragma: no cover (compiled)
+    """Z-buffer one triangle (corners relative to the camera, camera frame) into the band's pixels."""
+    a, b, c = camera[0], camera[1], camera[2]
+    e0, e1, e2 = _edge(a, b), _edge(b, c), _edge(c, a)
+    det = e1[0] * a[0] + e1[1] * a[1] + e1[2] * a[2]
+    if det == 0.0:
+        return  # degenerate, or seen exactly edge-on
+    sign = 1.0 if det > 0.0 else -1.0
+    inverse_det = 1.0 / det
+    top, bottom = max(rect[0], row_start), min(rect[1], row_stop - 1)
+    left, right = rect[2], rect[3]
+    if a[2] <= 0.0 and b[2] <= 0.0 and c[2] <= 0.0:
+        return  # behind the camera
+    if a[2] > _BEHIND and b[2] > _BEHIND and c[2] > _BEHIND:  # tighter rows and columns from the projection
+        y_low = min(a[1] / a[2], b[1] / b[2], c[1] / c[2])
+        y_high = max(a[1] / a[2], b[1] / b[2], c[1] / c[2])
+        x_low = min(a[0] / a[2], b[0] / b[2], c[0] / c[2])
+        x_high = max(a[0] / a[2], b[0] / b[2], c[0] / c[2])
+        top = max(top, int(np.floor((y_low - pixel_y[0]) * fy)))
+        bottom = min(bottom, int(np.ceil((y_high - pixel_y[0]) * fy)))
+        left = max(left, int(np.floor((x_low - pixel_x[0]) * fx)))
+        right = min(right, int(np.ceil((x_high - pixel_x[0]) * fx)))
+        if top > bottom or left > right:
+            return
+        if _occluded((top, bottom, left, right), min(a[2], b[2], c[2]), row_start, row_stop, inverse_depth, tiles, dirty):
+            return
+    for row in range(top, bottom + 1):
+        y = pixel_y[row]
+        r0, r1, r2 = e0[1] * y + e0[2], e1[1] * y + e1[2], e2[1] * y + e2[2]
+        first, last = left, right
+        if right - left > NARROW:
+            # Each edge's value along the row is linear in x: e[0] x + r. The columns where all three have
+            # the triangle's sign, widened by a pixel (the exact test below decides).
+            x_from, x_to = -np.inf, np.inf
+            for slope, offset in ((e0[0] * sign, r0 * sign), (e1[0] * sign, r1 * sign), (e2[0] * sign, r2 * sign)):
+                if slope > 0.0:
+                    x_from = max(x_from, -offset / slope)
+                elif slope < 0.0:
+                    x_to = min(x_to, -offset / slope)
+                elif offset < 0.0:
+                    x_to = -np.inf
+            if not x_from <= x_to:
+                continue
+            if x_from != -np.inf:
+                first = max(left, int(np.floor((x_from - pixel_x[0]) * fx)))
+            if x_to != np.inf:
+                last = min(right, int(np.ceil((x_to - pixel_x[0]) * fx)))
+        entered = False
+        for column in range(first, last + 1):
+            x = pixel_x[column]
+            w0, w1, w2 = e0[0] * x + r0, e1[0] * x + r1, e2[0] * x + r2
+            if w0 * sign < 0.0 or w1 * sign < 0.0 or w2 * sign < 0.0:
+                if entered:
+                    break  # a row crosses a triangle in one run of pixels
+                continue
+            entered = True
+            depth = np.float32((w0 + w1 + w2) * inverse_det)  # 1 / t: the plane's N . d over det(a, b, c)
+            if depth > inverse_depth[row, column]:
+                inverse_depth[row, column] = depth
+                winner[row, column] = triangle
+                dirty[(row - row_start) // TILE, column // TILE] = True
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _resolve(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_stop, miss, depth, face, barycentric,
+             normal, direction):  # pragma: no cover (compiled)
+    """Per pixel of rows row_start..row_stop: the ray (camera centre, R (x, y, 1) in float32, as the ray cast
+    builds it) against its winning triangle with Embree's Moeller-Trumbore arithmetic (float32): t, u, v and
+    the geometric normal (v1 - v0) x (v2 - v0), normalised; a miss as `EmbreeMesh.cast_rows` writes it."""
+    width = len(pixel_x)
+    ox, oy, oz = np.float32(pose[0, 3]), np.float32(pose[1, 3]), np.float32(pose[2, 3])
+    for row in range(row_start, row_stop):
+        y = pixel_y[row]
+        for column in range(width):
+            x = pixel_x[column]
+            dx = np.float32(pose[0, 0] * x + pose[0, 1] * y + pose[0, 2])
+            dy = np.float32(pose[1, 0] * x + pose[1, 1] * y + pose[1, 2])
+            dz = np.float32(pose[2, 0] * x + pose[2, 1] * y + pose[2, 2])
+            direction[row, column, 0], direction[row, column, 1], direction[row, column, 2] = dx, dy, dz
+            triangle = winner[row, column]
+            t = np.float32(0.0)
+            if triangle >= 0:
+                t, u, v, nx, ny, nz = _intersect(corners[triangle], ox, oy, oz, dx, dy, dz)
+            if not (t > 0.0 and t < np.inf):  # no triangle, or one the ray only grazes (no hit to report)
+                depth[row, column] = np.inf
+                face[row, column] = miss
+                barycentric[row, column, 0] = barycentric[row, column, 1] = 0.0
+                normal[row, column, 0] = normal[row, column, 1] = normal[row, column, 2] = 0.0
+                continue
+            depth[row, column] = t
+            face[row, column] = face_ids[triangle]
+            barycentric[row, column, 0], barycentric[row, column, 1] = u, v
+            length = np.sqrt(nx * nx + ny * ny + nz * nz)
+            normal[row, column, 0] = nx / length
+            normal[row, column, 1] = ny / length
+            normal[row, column, 2] = nz / length
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _intersect(corners, ox, oy, oz, dx, dy, dz):  # pragma: no cover (compiled)
+    """Embree's Moeller-Trumbore in float32: (t, u, v) of the ray o + t d in the triangle's plane and the
+    geometric normal Ng = e2 x e1 = (v1 - v0) x (v2 - v0) (not normalised)."""
+    v0, v1, v2 = corners[0], corners[1], corners[2]
+    e1x, e1y, e1z = v0[0] - v1[0], v0[1] - v1[1], v0[2] - v1[2]
+    e2x, e2y, e2z = v2[0] - v0[0], v2[1] - v0[1], v2[2] - v0[2]
+    nx, ny, nz = e2y * e1z - e2z * e1y, e2z * e1x - e2x * e1z, e2x * e1y - e2y * e1x
+    cx, cy, cz = v0[0] - ox, v0[1] - oy, v0[2] - oz
+    rx, ry, rz = cy * dz - cz * dy, cz * dx - cx * dz, cx * dy - cy * dx
+    den = nx * dx + ny * dy + nz * dz
+    sign = np.float32(1.0) if den >= 0 else np.float32(-1.0)
+    absolute = abs(den)
+    u = (rx * e2x + ry * e2y + rz * e2z) * sign / absolute
+    v = (rx * e1x + ry * e1y + rz * e1z) * sign / absolute
+    t = (nx * cx + ny * cy + nz * cz) * sign / absolute
+    return t, u, v, nx, ny, nz
