@@ -206,8 +206,8 @@ class IndirectGather:
         out = np.zeros((1, len(points), CHANNELS), np.float32)
         points, normals = np.asarray(points, np.float32)[None], np.asarray(normals, np.float32)[None]
         self._gather(points, normals, eyes[None], depth, 0, 1, lights, starts, out)
-        numbers = self._near_numbers(1, points.shape[1])
-        self._near_field(points, normals, eyes[None], depth, numbers, camera_to_world, out)
+        local = self._near_directions(1, points.shape[1])
+        self._near_field(points, normals, eyes[None], depth, local, camera_to_world, out)
         return out[0]
 
     def irradiance(self, hits: RayHits, camera_to_world: np.ndarray, out: np.ndarray | None = None,
@@ -235,12 +235,12 @@ class IndirectGather:
         _gather_points(hits.depth, hits.normal, hits.direction, origin, stride, points, point_normals, eyes,
                        point_depth)
         gathered = np.zeros((rows, columns, CHANNELS), np.float32)
-        numbers = self._near_numbers(rows, columns)
+        local = self._near_directions(rows, columns)
 
         def gather(band: slice) -> None:
             self._gather(points[band], point_normals[band], eyes[band], point_depth[band], band.start, interleave,
                          lights, starts, gathered[band])
-            self._near_field(points[band], point_normals[band], eyes[band], point_depth[band], numbers[band],
+            self._near_field(points[band], point_normals[band], eyes[band], point_depth[band], local[band],
                              camera_to_world, gathered[band])
 
         self._run_bands(gather, rows)
@@ -260,65 +260,46 @@ class IndirectGather:
         return out
 
     def _near_field(self, points: np.ndarray, normals: np.ndarray, eyes: np.ndarray, depth: np.ndarray,
-                    numbers: np.ndarray, camera_to_world: np.ndarray, gathered: np.ndarray) -> None:
+                    local: np.ndarray, camera_to_world: np.ndarray, gathered: np.ndarray) -> None:
         """Add to `gathered` the light the clamp of the virtual lights leaves out (Kollig and Keller's bias
-        compensation): K = NEAR_FIELD_RAYS cosine rays per gather point x (directions from `numbers`);
-        a surface y hit at r < clamp brings pi / K L_y (1 - r^2 / clamp^2), L_y being what y reflects towards
-        x (`_reflected_towards`)."""
-        cells = np.flatnonzero(np.isfinite(depth).ravel())
+        compensation): K = NEAR_FIELD_RAYS cosine rays per gather point x (`local`: their directions in the
+        frame of x's normal); a surface y hit at r < clamp brings pi / K L_y (1 - r^2 / clamp^2), L_y being
+        what y reflects towards x: the spot's direct light (one shadow ray back to the camera) through the base
+        and the lobe (widened as Filter Glossy does after x's bounce), and, as a stand-in for y's own indirect
+        light, x's irradiance through the base. Float64 where it pays for equal numbers across versions."""
+        camera = np.asarray(camera_to_world, np.float64)[:3, 3].copy()
+        cells, origins, directions = _near_rays(points, normals, depth, local, camera, SURFACE_OFFSET)
         if len(cells) == 0:
             return
-        rays, clamp = NEAR_FIELD_RAYS, self.settings.clamp_distance
-        x, n, eye = (np.repeat(a.reshape(-1, 3)[cells].astype(np.float64), rays, axis=0)
-                     for a in (points, normals, eyes))
-        directions = cosine_directions(n, numbers.reshape(-1, rays, 2)[cells].reshape(-1, 2))
-        camera = np.asarray(camera_to_world, np.float64)[:3, 3]
-        origins = x + n * (SURFACE_OFFSET * (1.0 + np.linalg.norm(x - camera, axis=1, keepdims=True)))
-        positions, surface_normals, towards_x, rho, hit = self._land(origins.astype(np.float32),
-                                                                    directions.astype(np.float32))
-        distance = np.linalg.norm(positions - origins, axis=1)
-        near = np.flatnonzero(hit & (distance < clamp))
-        owner = cells[near // rays]
-        irradiance = gathered.reshape(-1, CHANNELS)[owner, :3].astype(np.float64)
-        radiance = self._reflected_towards(positions[near], surface_normals[near], towards_x[near], rho[near],
-                                           np.sum(n[near] * directions[near], axis=1), irradiance, camera_to_world)
-        contribution = math.pi / rays * radiance * (1.0 - (distance[near] / clamp) ** 2)[:, None]
-        alpha = np.full(len(near), self.tables.alpha)
-        seen = math.pi * _lobe(n[near], directions[near], eye[near], alpha, self.tables)
-        flat = gathered.reshape(-1, CHANNELS)
-        np.add.at(flat, (owner, slice(0, 3)), contribution.astype(np.float32))
-        np.add.at(flat, (owner, slice(3, 6)), (contribution * seen[:, None]).astype(np.float32))
-
-    def _reflected_towards(self, y: np.ndarray, normals: np.ndarray, towards_x: np.ndarray, rho: np.ndarray,
-                           cos_at_x: np.ndarray, irradiance: np.ndarray, camera_to_world: np.ndarray) -> np.ndarray:
-        """(n, 3) radiance surfaces at y send towards x: the spot's direct light (one shadow ray to the camera)
-        through the base and the lobe (widened as Filter Glossy does after x's bounce at cos_at_x), and, as a
-        stand-in for y's own indirect light, x's `irradiance` through the base."""
-        camera = np.asarray(camera_to_world, np.float64)[:3, 3]
-        y, normals, towards_x = (a.astype(np.float64) for a in (y, normals, towards_x))
-        to_light = camera - y
-        distance = np.linalg.norm(to_light, axis=1)
-        to_light /= distance[:, None]
-        cos_light = np.sum(normals * to_light, axis=1)
-        off_axis = -np.sum(to_light * np.asarray(camera_to_world, np.float64)[:3, 2], axis=1)
+        count = len(origins)
+        t, face = np.empty(count, np.float32), np.empty(count, np.int64)
+        barycentric, hit_normals = np.empty((count, 2), np.float32), np.empty((count, 3), np.float32)
+        self.mesh.intersect(origins.astype(np.float32), directions.astype(np.float32), 0.0,
+                            (t, face, barycentric, hit_normals))
+        axis = np.asarray(camera_to_world, np.float64)[:3, 2].copy()
+        near, positions, distance, shadow_origins, shadow_directions, off_axis = _near_hits(
+            origins, directions, t, face, hit_normals, camera, axis, self.settings.clamp_distance, SURFACE_OFFSET)
+        if len(near) == 0:
+            return
+        blocked = np.empty(len(near), np.bool_)
+        self.mesh.occluded(shadow_origins, shadow_directions, np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
         spot = radiant_intensity(self.illumination) * cone_falloff(off_axis, self.illumination)
-        blocked = np.empty(len(y), np.bool_)
-        shadow_origins = (y + normals * (SURFACE_OFFSET * (1.0 + distance))[:, None]).astype(np.float32)
-        self.mesh.occluded(shadow_origins, (camera - shadow_origins).astype(np.float32),
-                           np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
-        direct = np.where(blocked, 0.0, spot * np.maximum(cos_light, 0.0) / distance**2)
-        base = self.tables.diffuse[table_entries(np.sum(normals * towards_x, axis=1))] / math.pi
-        lobe = _lobe(normals, to_light, towards_x, widened_alpha(self.tables.alpha, cos_at_x), self.tables)
-        return rho * base[:, None] * (direct[:, None] + irradiance) + (lobe * direct)[:, None]
+        rho = srgb_to_linear(self.colors.albedo_at(face[near], barycentric[near]) / 255.0)
+        tables = self.tables
+        _near_light(near, cells, directions, positions, hit_normals, distance, rho, spot, blocked, normals,
+                    eyes, camera, self.settings.clamp_distance, tables.diffuse, tables.energy, tables.alpha, tables.ior,
+                    gathered)
 
-    def _near_numbers(self, rows: int, columns: int) -> np.ndarray:
-        """(rows, columns, NEAR_FIELD_RAYS, 2) uniform numbers of the near-field rays of a grid of gather
-        points, stratified per point (fixed per job and grid)."""
+    def _near_directions(self, rows: int, columns: int) -> np.ndarray:
+        """(rows, columns, NEAR_FIELD_RAYS, 3) cosine-distributed directions in the frame of a normal (z) of the
+        near-field rays of a grid of gather points, stratified per point (fixed per job and grid)."""
         rays = NEAR_FIELD_RAYS
         if self._near_cache is None or self._near_cache.shape[:2] != (rows, columns):
             rng = np.random.default_rng([self._seed, _SEED_STREAM, 1])
             strata = (np.arange(rays) + rng.random((rows, columns, rays))) / rays
-            self._near_cache = np.stack([strata, rng.random((rows, columns, rays))], axis=-1)
+            cos_theta = np.sqrt(np.maximum(0.0, 1.0 - strata))
+            self._near_cache = _local_directions(cos_theta.ravel(), rng.random((rows, columns, rays)).ravel()
+                                                 ).reshape(rows, columns, rays, 3)
         return self._near_cache
 
     def _gather(self, points: np.ndarray, normals: np.ndarray, eyes: np.ndarray, depth: np.ndarray, row_offset: int,
@@ -375,19 +356,6 @@ def widened_alpha(alpha, cos_x):  # pragma: no cover (compiled)
     return np.maximum(alpha, 0.5 * np.sqrt(np.maximum(0.0, 1.0 - FILTER_GLOSSY * cos_x / math.pi)))
 
 
-def _lobe(normals: np.ndarray, a: np.ndarray, b: np.ndarray, alpha: np.ndarray, tables: ReflectionTables
-          ) -> np.ndarray:
-    """(n,) the lobe f(a, b) M(cos_b) of surfaces of `normals` between unit directions a and b (n, 3)."""
-    half = a + b
-    half /= np.maximum(np.linalg.norm(half, axis=1, keepdims=True), 1e-12)
-    cos_a, cos_b = np.sum(normals * a, axis=1), np.sum(normals * b, axis=1)
-    cos_h, cos_bh = np.sum(normals * half, axis=1), np.sum(b * half, axis=1)
-    facing = (cos_a > 1e-6) & (cos_b > 1e-6) & (cos_h > 0) & (cos_bh > 0)
-    cos_a, cos_b, cos_bh = (np.maximum(c, 1e-6) for c in (cos_a, cos_b, cos_bh))
-    value = glossy_brdf(cos_h, cos_a, cos_b, cos_bh, alpha, tables.ior) * tables.energy[table_entries(cos_b)]
-    return np.where(facing, value, 0.0)
-
-
 def table_entries(mu: np.ndarray) -> np.ndarray:
     """Entries of the material tables for cosines `mu` (clipped to [0, 1])."""
     return np.rint(np.clip(mu, 0.0, 1.0) * (TABLE_SIZE - 1)).astype(np.int64)
@@ -406,14 +374,19 @@ def ggx_half_vectors(normals: np.ndarray, numbers: np.ndarray, alpha: float) -> 
 
 def _about_normals(cos_theta: np.ndarray, turn: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """Unit directions at cos_theta (n,) to `normals` (n, 3), at azimuth 2 pi turn (n,) about them."""
-    radius, phi = np.sqrt(np.maximum(0.0, 1.0 - cos_theta**2)), 2.0 * math.pi * turn
-    local = np.stack([radius * np.cos(phi), radius * np.sin(phi), cos_theta], 1)
+    local = _local_directions(cos_theta, turn)
     normals = normals.astype(np.float64)
     helper = np.where(np.abs(normals[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
     tangent = np.cross(helper, normals)
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
     bitangent = np.cross(normals, tangent)
     return local[:, :1] * tangent + local[:, 1:2] * bitangent + local[:, 2:] * normals
+
+
+def _local_directions(cos_theta: np.ndarray, turn: np.ndarray) -> np.ndarray:
+    """Unit directions (n, 3) at cos_theta (n,) to the z axis, at azimuth 2 pi turn (n,) about it."""
+    radius, phi = np.sqrt(np.maximum(0.0, 1.0 - cos_theta**2)), 2.0 * math.pi * turn
+    return np.stack([radius * np.cos(phi), radius * np.sin(phi), cos_theta], 1)
 
 
 @numba.njit(nogil=True, cache=True)
@@ -440,6 +413,149 @@ def _gather_points(depth, normal, direction, origin, stride, points, point_norma
                 point_normals[i, k, axis] = sign * normal[row, column, axis]
                 eyes[i, k, axis] = -direction[row, column, axis] / length
             point_depth[i, k] = z
+
+
+@numba.njit(nogil=True, cache=True)
+def _near_rays(points, normals, depth, local, camera, offset):  # pragma: no cover (compiled)
+    """The near-field rays of every gather point with a surface: its cell (flat index), and per ray the origin off
+    the surface and the direction `local` turned into the frame of its normal (float64, as `_about_normals`)."""
+    rows, columns = depth.shape
+    rays = local.shape[2]
+    cells = np.flatnonzero(np.isfinite(depth.ravel()))
+    origins = np.empty((len(cells) * rays, 3), np.float64)
+    directions = np.empty((len(cells) * rays, 3), np.float64)
+    for m in range(len(cells)):
+        i, k = cells[m] // columns, cells[m] % columns
+        nx, ny, nz = np.float64(normals[i, k, 0]), np.float64(normals[i, k, 1]), np.float64(normals[i, k, 2])
+        hx, hy, hz = (0.0, 1.0, 0.0) if abs(nx) > 0.9 else (1.0, 0.0, 0.0)
+        tx, ty, tz = hy * nz - hz * ny, hz * nx - hx * nz, hx * ny - hy * nx
+        length = np.sqrt(tx * tx + ty * ty + tz * tz)
+        tx, ty, tz = tx / length, ty / length, tz / length
+        bx, by, bz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
+        x = np.empty(3, np.float64)
+        for axis in range(3):
+            x[axis] = points[i, k, axis]
+        away = np.sqrt(_dot(x - camera, x - camera))
+        lift = offset * (1.0 + away)
+        for q in range(rays):
+            r = m * rays + q
+            l0, l1, l2 = local[i, k, q, 0], local[i, k, q, 1], local[i, k, q, 2]
+            directions[r, 0] = l0 * tx + l1 * bx + l2 * nx
+            directions[r, 1] = l0 * ty + l1 * by + l2 * ny
+            directions[r, 2] = l0 * tz + l1 * bz + l2 * nz
+            origins[r, 0], origins[r, 1], origins[r, 2] = x[0] + nx * lift, x[1] + ny * lift, x[2] + nz * lift
+    return cells, origins, directions
+
+
+@numba.njit(nogil=True, cache=True)
+def _near_hits(origins, directions, t, face, hit_normals, camera, axis, clamp, offset):  # pragma: no cover (compiled)
+    """The near-field rays that land nearer than `clamp`: their indices, where they land (float32, as the ray
+    arithmetic in float32 puts them), the distance from the ray's origin, and the shadow ray from there back to
+    the spot (origin off the surface, direction: t in [0, 1)) with its cosine to the spot's axis. Turns
+    `hit_normals` of those rays to the side the ray came from."""
+    count = len(face)
+    near = np.empty(count, np.int64)
+    positions = np.empty((count, 3), np.float32)
+    distance = np.empty(count, np.float64)
+    m = 0
+    for r in range(count):
+        if face[r] < 0:
+            continue
+        squared = 0.0
+        for a in range(3):
+            positions[m, a] = np.float32(origins[r, a]) + np.float32(directions[r, a]) * t[r]
+            gap = np.float64(positions[m, a]) - origins[r, a]
+            squared += gap * gap
+        if np.sqrt(squared) < clamp:
+            near[m], distance[m] = r, np.sqrt(squared)
+            m += 1
+    shadow_origins = np.empty((m, 3), np.float32)
+    shadow_directions = np.empty((m, 3), np.float32)
+    off_axis = np.empty(m, np.float64)
+    for q in range(m):
+        r = near[q]
+        facing = (hit_normals[r, 0] * np.float32(directions[r, 0]) + hit_normals[r, 1] * np.float32(directions[r, 1])
+                  + hit_normals[r, 2] * np.float32(directions[r, 2]))
+        sign = np.float32(-1.0) if facing > 0 else np.float32(1.0)
+        to_light = np.empty(3, np.float64)
+        for a in range(3):
+            hit_normals[r, a] *= sign
+            to_light[a] = camera[a] - np.float64(positions[q, a])
+        away = np.sqrt(_dot(to_light, to_light))
+        lift = offset * (1.0 + away)
+        off_axis[q] = -(to_light[0] / away * axis[0] + to_light[1] / away * axis[1] + to_light[2] / away * axis[2])
+        for a in range(3):
+            shadow_origins[q, a] = np.float32(np.float64(positions[q, a]) + np.float64(hit_normals[r, a]) * lift)
+            shadow_directions[q, a] = np.float32(camera[a] - np.float64(shadow_origins[q, a]))
+    return near[:m], positions[:m], distance[:m], shadow_origins, shadow_directions, off_axis
+
+
+@numba.njit(nogil=True, cache=True)
+def _near_light(near, cells, directions, positions, hit_normals, distance, rho, spot, blocked, normals, eyes, camera,
+                clamp, diffuse, energy, alpha, ior, gathered):  # pragma: no cover (compiled)
+    """Add to `gathered` what each near hit y brings its gather point x (see `_near_field`): pi / K (1 - r^2 /
+    clamp^2) L_y, and x's lobe times that; every L_y reads x's irradiance before any is added."""
+    rays, columns = NEAR_FIELD_RAYS, gathered.shape[1]
+    contributions = np.empty((len(near), CHANNELS), np.float32)
+    for q in range(len(near)):
+        r = near[q]
+        cell = cells[r // rays]
+        i, k = cell // columns, cell % columns
+        n = np.empty(3, np.float64)
+        eye, d, y, m = np.empty(3, np.float64), np.empty(3, np.float64), np.empty(3, np.float64), np.empty(3, np.float64)
+        towards_x, to_light = np.empty(3, np.float64), np.empty(3, np.float64)
+        ray = np.empty(3, np.float32)
+        for a in range(3):
+            n[a], eye[a], d[a] = normals[i, k, a], eyes[i, k, a], directions[r, a]
+            y[a], m[a], ray[a] = positions[q, a], hit_normals[r, a], directions[r, a]
+            to_light[a] = camera[a] - y[a]
+        # The direction back along the ray as the float32 landing computes it.
+        length = max(np.sqrt(ray[0] * ray[0] + ray[1] * ray[1] + ray[2] * ray[2]), np.float32(1e-12))
+        for a in range(3):
+            towards_x[a] = -ray[a] / length
+        away = np.sqrt(_dot(to_light, to_light))
+        for a in range(3):
+            to_light[a] /= away
+        cos_at_x = _dot(n, d)
+        direct = 0.0
+        if not blocked[q]:
+            direct = np.float64(spot[q]) * max(_dot(m, to_light), 0.0) / (away * away)
+        base = diffuse[_table_entry(_dot(m, towards_x))] / np.float32(math.pi)
+        lobe = _lobe(m, to_light, towards_x, widened_alpha(alpha, cos_at_x), ior, energy)
+        seen = math.pi * _lobe(n, d, eye, np.float64(alpha), ior, energy)
+        falloff = distance[q] / clamp
+        for c in range(3):
+            radiance = np.float64(rho[q, c] * base) * (direct + np.float64(gathered[i, k, c])) + lobe * direct
+            contribution = math.pi / rays * radiance * (1.0 - falloff * falloff)
+            contributions[q, c] = contribution
+            contributions[q, 3 + c] = contribution * seen
+    for q in range(len(near)):
+        cell = cells[near[q] // rays]
+        for c in range(CHANNELS):
+            gathered[cell // columns, cell % columns, c] += contributions[q, c]
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _dot(a, b):  # pragma: no cover (compiled)
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _table_entry(mu):  # pragma: no cover (compiled)
+    """The material tables' entry of a cosine, as `table_entries` (clipped to [0, 1], rounded half to even)."""
+    return np.int64(np.rint(min(max(mu, 0.0), 1.0) * (TABLE_SIZE - 1)))
+
+
+@numba.njit(nogil=True, cache=True)
+def _lobe(normal, a, b, alpha, ior, energy):  # pragma: no cover (compiled)
+    """The lobe f(a, b) M(cos_b) of a surface of `normal` between unit directions a and b (float64 3-vectors)."""
+    half = a + b
+    half /= max(np.sqrt(_dot(half, half)), 1e-12)
+    cos_a, cos_b, cos_h, cos_bh = _dot(normal, a), _dot(normal, b), _dot(normal, half), _dot(b, half)
+    if not (cos_a > 1e-6 and cos_b > 1e-6 and cos_h > 0 and cos_bh > 0):
+        return 0.0
+    cos_a, cos_b, cos_bh = max(cos_a, 1e-6), max(cos_b, 1e-6), max(cos_bh, 1e-6)
+    return glossy_brdf(cos_h, cos_a, cos_b, cos_bh, alpha, ior) * np.float64(energy[_table_entry(cos_b)])
 
 
 @numba.njit(nogil=True, cache=True, inline="always")
