@@ -137,11 +137,12 @@ class EmbreeMesh:
 
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray, tnear: float,
-                  out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> None:
-        """Closest hits of arbitrary rays (n, 3) into `out` = (t, face, barycentric, normal): t = inf, face = -1
-        and normal 0 on a miss; `normal` is the unit geometric normal. Used for the bounces of indirect light."""
+                  out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], tfar: float = np.inf) -> None:
+        """Closest hits of arbitrary rays (n, 3) with tnear < t < tfar into `out` = (t, face, barycentric, normal):
+        t = inf, face = -1 and normal 0 on a miss; `normal` is the unit geometric normal. Used for the bounces of
+        indirect light (a finite tfar spares the traversal beyond it; nearer hits come out the same)."""
         _rays_kernel()(self.scene, _aligned((_PACKET_ROWS, _PACKET), np.uint32), _aligned((_PACKET,), np.int32),
-                       origins, directions, np.float32(tnear), *out)
+                       origins, directions, np.float32(tnear), np.full(1, tfar, np.float32), *out)
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, tfar: np.ndarray, out: np.ndarray) -> None:
         """Shadow rays: out[i] = True when a triangle lies on origins[i] + t directions[i], 0 < t < tfar[i]
@@ -241,12 +242,11 @@ def _rays_kernel():  # noqa: ANN202 (a numba dispatcher)
     intersect8 = _library().rtcIntersect8
 
     @numba.njit(nogil=True)
-    def rays(scene, packet, valid, origins, directions, tnear, t, face, barycentric, normal):
+    def rays(scene, packet, valid, origins, directions, tnear, tfar, t, face, barycentric, normal):
         lanes = packet.view(np.float32)
-        infinite = np.full(1, np.inf, np.float32)
         for start in range(0, len(origins), _PACKET):
             count = min(_PACKET, len(origins) - start)
-            _load_packet(packet, valid, start, count, origins, directions, tnear, infinite)
+            _load_packet(packet, valid, start, count, origins, directions, tnear, tfar)
             intersect8(valid.ctypes.data, scene, packet.ctypes.data, 0)
             for k in range(count):
                 i = start + k

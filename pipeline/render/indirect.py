@@ -274,8 +274,11 @@ class IndirectGather:
         count = len(origins)
         t, face = np.empty(count, np.float32), np.empty(count, np.int64)
         barycentric, hit_normals = np.empty((count, 2), np.float32), np.empty((count, 3), np.float32)
+        # Only hits nearer than the clamp count: Embree may stop looking a margin beyond it (1 % + 1 mm, far more
+        # than float32 rounding puts between t along the unit ray and the distance `_near_hits` tests).
+        reach = 1.01 * self.settings.clamp_distance + 1e-3
         self.mesh.intersect(origins.astype(np.float32), directions.astype(np.float32), 0.0,
-                            (t, face, barycentric, hit_normals))
+                            (t, face, barycentric, hit_normals), reach)
         axis = np.asarray(camera_to_world, np.float64)[:3, 2].copy()
         near, positions, distance, shadow_origins, shadow_directions, off_axis = _near_hits(
             origins, directions, t, face, hit_normals, camera, axis, self.settings.clamp_distance, SURFACE_OFFSET)
@@ -424,6 +427,7 @@ def _near_rays(points, normals, depth, local, camera, offset):  # pragma: no cov
     cells = np.flatnonzero(np.isfinite(depth.ravel()))
     origins = np.empty((len(cells) * rays, 3), np.float64)
     directions = np.empty((len(cells) * rays, 3), np.float64)
+    x, gap = np.empty(3, np.float64), np.empty(3, np.float64)
     for m in range(len(cells)):
         i, k = cells[m] // columns, cells[m] % columns
         nx, ny, nz = np.float64(normals[i, k, 0]), np.float64(normals[i, k, 1]), np.float64(normals[i, k, 2])
@@ -432,10 +436,10 @@ def _near_rays(points, normals, depth, local, camera, offset):  # pragma: no cov
         length = np.sqrt(tx * tx + ty * ty + tz * tz)
         tx, ty, tz = tx / length, ty / length, tz / length
         bx, by, bz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
-        x = np.empty(3, np.float64)
         for axis in range(3):
             x[axis] = points[i, k, axis]
-        away = np.sqrt(_dot(x - camera, x - camera))
+            gap[axis] = x[axis] - camera[axis]
+        away = np.sqrt(_dot(gap, gap))
         lift = offset * (1.0 + away)
         for q in range(rays):
             r = m * rays + q
@@ -472,12 +476,12 @@ def _near_hits(origins, directions, t, face, hit_normals, camera, axis, clamp, o
     shadow_origins = np.empty((m, 3), np.float32)
     shadow_directions = np.empty((m, 3), np.float32)
     off_axis = np.empty(m, np.float64)
+    to_light = np.empty(3, np.float64)
     for q in range(m):
         r = near[q]
         facing = (hit_normals[r, 0] * np.float32(directions[r, 0]) + hit_normals[r, 1] * np.float32(directions[r, 1])
                   + hit_normals[r, 2] * np.float32(directions[r, 2]))
         sign = np.float32(-1.0) if facing > 0 else np.float32(1.0)
-        to_light = np.empty(3, np.float64)
         for a in range(3):
             hit_normals[r, a] *= sign
             to_light[a] = camera[a] - np.float64(positions[q, a])
@@ -497,14 +501,14 @@ def _near_light(near, cells, directions, positions, hit_normals, distance, rho, 
     clamp^2) L_y, and x's lobe times that; every L_y reads x's irradiance before any is added."""
     rays, columns = NEAR_FIELD_RAYS, gathered.shape[1]
     contributions = np.empty((len(near), CHANNELS), np.float32)
+    vectors = np.empty((8, 3), np.float64)  # scratch, one row per 3-vector (no allocation per ray)
+    n, eye, d, y, m, towards_x, to_light, half = (vectors[0], vectors[1], vectors[2], vectors[3], vectors[4],
+                                                  vectors[5], vectors[6], vectors[7])
+    ray = np.empty(3, np.float32)
     for q in range(len(near)):
         r = near[q]
         cell = cells[r // rays]
         i, k = cell // columns, cell % columns
-        n = np.empty(3, np.float64)
-        eye, d, y, m = np.empty(3, np.float64), np.empty(3, np.float64), np.empty(3, np.float64), np.empty(3, np.float64)
-        towards_x, to_light = np.empty(3, np.float64), np.empty(3, np.float64)
-        ray = np.empty(3, np.float32)
         for a in range(3):
             n[a], eye[a], d[a] = normals[i, k, a], eyes[i, k, a], directions[r, a]
             y[a], m[a], ray[a] = positions[q, a], hit_normals[r, a], directions[r, a]
@@ -521,8 +525,8 @@ def _near_light(near, cells, directions, positions, hit_normals, distance, rho, 
         if not blocked[q]:
             direct = np.float64(spot[q]) * max(_dot(m, to_light), 0.0) / (away * away)
         base = diffuse[_table_entry(_dot(m, towards_x))] / np.float32(math.pi)
-        lobe = _lobe(m, to_light, towards_x, widened_alpha(alpha, cos_at_x), ior, energy)
-        seen = math.pi * _lobe(n, d, eye, np.float64(alpha), ior, energy)
+        lobe = _lobe(m, to_light, towards_x, widened_alpha(alpha, cos_at_x), ior, energy, half)
+        seen = math.pi * _lobe(n, d, eye, np.float64(alpha), ior, energy, half)
         falloff = distance[q] / clamp
         for c in range(3):
             radiance = np.float64(rho[q, c] * base) * (direct + np.float64(gathered[i, k, c])) + lobe * direct
@@ -547,9 +551,11 @@ def _table_entry(mu):  # pragma: no cover (compiled)
 
 
 @numba.njit(nogil=True, cache=True)
-def _lobe(normal, a, b, alpha, ior, energy):  # pragma: no cover (compiled)
-    """The lobe f(a, b) M(cos_b) of a surface of `normal` between unit directions a and b (float64 3-vectors)."""
-    half = a + b
+def _lobe(normal, a, b, alpha, ior, energy, half):  # pragma: no cover (compiled)
+    """The lobe f(a, b) M(cos_b) of a surface of `normal` between unit directions a and b (float64 3-vectors;
+    `half`: scratch for their half vector)."""
+    for axis in range(3):
+        half[axis] = a[axis] + b[axis]
     half /= max(np.sqrt(_dot(half, half)), 1e-12)
     cos_a, cos_b, cos_h, cos_bh = _dot(normal, a), _dot(normal, b), _dot(normal, half), _dot(b, half)
     if not (cos_a > 1e-6 and cos_b > 1e-6 and cos_h > 0 and cos_bh > 0):
