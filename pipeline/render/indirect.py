@@ -39,7 +39,7 @@ from pipeline.config import Illumination
 from pipeline.render.embree import EmbreeMesh
 from pipeline.render.lighting import (INDIRECT_BLOCK, SurfaceColors, cone_falloff, radiant_intensity,
                                       srgb_to_linear)
-from pipeline.render.material import (TABLE_SIZE, ReflectionTables, fresnel_dielectric, glossy_brdf, reflection_tables,
+from pipeline.render.material import (TABLE_SIZE, fresnel_dielectric, glossy_brdf, reflection_tables,
                                       smith_g2)
 from pipeline.render.raycaster import RayHits, row_bands, thread_pool
 
@@ -266,7 +266,8 @@ class IndirectGather:
         frame of x's normal); a surface y hit at r < clamp brings pi / K L_y (1 - r^2 / clamp^2), L_y being
         what y reflects towards x: the spot's direct light (one shadow ray back to the camera) through the base
         and the lobe (widened as Filter Glossy does after x's bounce), and, as a stand-in for y's own indirect
-        light, x's irradiance through the base. Float64 where it pays for equal numbers across versions."""
+        light, x's irradiance through the base. The kernels keep the dtypes and the order of the operations of the
+        numpy code they replace (float64 mostly), so frames stay the same to the byte."""
         camera = np.asarray(camera_to_world, np.float64)[:3, 3].copy()
         cells, origins, directions = _near_rays(points, normals, depth, local, camera, SURFACE_OFFSET)
         if len(cells) == 0:
@@ -422,8 +423,7 @@ def _gather_points(depth, normal, direction, origin, stride, points, point_norma
 def _near_rays(points, normals, depth, local, camera, offset):  # pragma: no cover (compiled)
     """The near-field rays of every gather point with a surface: its cell (flat index), and per ray the origin off
     the surface and the direction `local` turned into the frame of its normal (float64, as `_about_normals`)."""
-    rows, columns = depth.shape
-    rays = local.shape[2]
+    columns, rays = depth.shape[1], local.shape[2]
     cells = np.flatnonzero(np.isfinite(depth.ravel()))
     origins = np.empty((len(cells) * rays, 3), np.float64)
     directions = np.empty((len(cells) * rays, 3), np.float64)
@@ -470,8 +470,9 @@ def _near_hits(origins, directions, t, face, hit_normals, camera, axis, clamp, o
             positions[m, a] = np.float32(origins[r, a]) + np.float32(directions[r, a]) * t[r]
             gap = np.float64(positions[m, a]) - origins[r, a]
             squared += gap * gap
-        if np.sqrt(squared) < clamp:
-            near[m], distance[m] = r, np.sqrt(squared)
+        distance[m] = np.sqrt(squared)
+        if distance[m] < clamp:
+            near[m] = r
             m += 1
     shadow_origins = np.empty((m, 3), np.float32)
     shadow_directions = np.empty((m, 3), np.float32)
@@ -541,6 +542,7 @@ def _near_light(near, cells, directions, positions, hit_normals, distance, rho, 
 
 @numba.njit(nogil=True, cache=True, inline="always")
 def _dot(a, b):  # pragma: no cover (compiled)
+    """The dot product of two 3-vectors, summed in numpy's order (x, then y, then z)."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 

@@ -140,3 +140,27 @@ def test_z_buffer_bands_of_any_split_give_the_same_hits() -> None:
             rasterizer.draw_band(band, pose)
         winners.append(rasterizer.winner.copy())
     assert (winners[0] >= 0).all() and all(np.array_equal(winners[0], other) for other in winners[1:])
+
+
+def test_closest_hits_within_a_reach_are_those_without_it_and_farther_ones_are_misses() -> None:
+    from pipeline.render.embree import EmbreeMesh
+    from tests.render.tiny_scenes import room_scene
+
+    scene = room_scene()
+    mesh = EmbreeMesh(scene.vertices, scene.faces)
+    rng = np.random.default_rng(3)
+    directions = rng.normal(size=(4000, 3)).astype(np.float32)
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    origins = np.repeat(np.array([[0.3, 1.2, -0.4]], np.float32), len(directions), 0)
+    hits = []
+    for reach in (np.inf, 1.8):
+        out = (np.empty(len(origins), np.float32), np.empty(len(origins), np.int64),
+               np.empty((len(origins), 2), np.float32), np.empty((len(origins), 3), np.float32))
+        mesh.intersect(origins, directions, 0.0, out, reach)
+        hits.append(out)
+    (t, face, barycentric, normal), (t_near, face_near, barycentric_near, normal_near) = hits
+    within = t < 1.8
+    assert 0.1 < within.mean() < 0.9  # the reach cuts the room's rays both ways
+    for everywhere, reached in ((t, t_near), (face, face_near), (barycentric, barycentric_near), (normal, normal_near)):
+        assert np.array_equal(everywhere[within], reached[within])
+    assert (face_near[~within] == -1).all() and np.isinf(t_near[~within]).all()
