@@ -9,7 +9,7 @@ else the writer passes. Stores are written in a staging folder and committed who
 from __future__ import annotations
 
 import functools
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -112,6 +112,16 @@ class VideoWriter:
         if self._writing is not None:
             writing, self._writing = self._writing, None
             writing.result()
+
+    def __enter__(self) -> "VideoWriter":
+        return self
+
+    def __exit__(self, *failure: object) -> None:
+        """Let no shard write run on past the block: when rendering failed, the attempt's staging folder is
+        removed next (and a retry in this process would write into the same folder)."""
+        if self._writing is not None:
+            wait([self._writing])  # the block's own error is the one to raise
+            self._writing = None
 
     def close(self) -> int:
         """Write what is buffered; returns the number of frames written (all of them, or it raises)."""

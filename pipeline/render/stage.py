@@ -158,32 +158,31 @@ def render_video(renderer: VideoRenderer, poses: np.ndarray, store: "Path", traj
     embodiment = renderer.embodiment
     noisy = embodiment.sensor.model != "ideal"
     arrays = ("rgb", "depth", "depth_clean", "panoptic") if noisy else ("rgb", "depth", "panoptic")
-    writer = VideoWriter(store, len(poses), renderer.camera.width, renderer.camera.height,
-                         video_attributes(renderer, poses, trajectory), arrays=arrays,
-                         frames_per_shard=frames_per_shard, level=ZSTD_LEVEL,
-                         background=renderer.raycaster.threads > 1)
-    key = {"embodiment": embodiment.name, "video_name": trajectory["video_name"]}
-    frame_stats, segments, visible_categories = [], [], {}
-    for t, pose in enumerate(poses):
-        started = time.perf_counter()
-        rng = None
-        if noisy:
-            if context is None and rng_of_frame is None:
-                raise ValueError("a noisy sensor model needs `context` or `rng_of_frame` to seed its noise")
-            rng = context.rng("sensor", t) if context is not None else rng_of_frame(t)  # type: ignore[misc]
-        frame = renderer.render(pose, rng)
-        found = frame_segments(frame.panoptic, renderer.labels, frame.dense)
-        writer.append(**_buffers(frame, noisy))
-        frame_stats.append({**key, "frame": t, "render_seconds": time.perf_counter() - started,
-                            "void_fraction": found.void_pixels / frame.panoptic.size,
-                            "visible_objects": len(found.object_ids),
-                            "valid_depth_fraction": float(np.count_nonzero(frame.depth)) / frame.depth.size})
-        for k, object_id in enumerate(found.object_ids):
-            x0, y0, x1, y1 = (int(v) for v in found.boxes[k])
-            segments.append({**key, "frame": t, "object_id": int(object_id), "category": int(found.categories[k]),
-                             "area": int(found.areas[k]), "x0": x0, "y0": y0, "x1": x1, "y1": y1})
-            visible_categories[int(object_id)] = int(found.categories[k])
-    writer.close()
+    with VideoWriter(store, len(poses), renderer.camera.width, renderer.camera.height,
+                     video_attributes(renderer, poses, trajectory), arrays=arrays, frames_per_shard=frames_per_shard,
+                     level=ZSTD_LEVEL, background=renderer.raycaster.threads > 1) as writer:
+        key = {"embodiment": embodiment.name, "video_name": trajectory["video_name"]}
+        frame_stats, segments, visible_categories = [], [], {}
+        for t, pose in enumerate(poses):
+            started = time.perf_counter()
+            rng = None
+            if noisy:
+                if context is None and rng_of_frame is None:
+                    raise ValueError("a noisy sensor model needs `context` or `rng_of_frame` to seed its noise")
+                rng = context.rng("sensor", t) if context is not None else rng_of_frame(t)  # type: ignore[misc]
+            frame = renderer.render(pose, rng)
+            found = frame_segments(frame.panoptic, renderer.labels, frame.dense)
+            writer.append(**_buffers(frame, noisy))
+            frame_stats.append({**key, "frame": t, "render_seconds": time.perf_counter() - started,
+                                "void_fraction": found.void_pixels / frame.panoptic.size,
+                                "visible_objects": len(found.object_ids),
+                                "valid_depth_fraction": float(np.count_nonzero(frame.depth)) / frame.depth.size})
+            for k, object_id in enumerate(found.object_ids):
+                x0, y0, x1, y1 = (int(v) for v in found.boxes[k])
+                segments.append({**key, "frame": t, "object_id": int(object_id), "category": int(found.categories[k]),
+                                 "area": int(found.areas[k]), "x0": x0, "y0": y0, "x1": x1, "y1": y1})
+                visible_categories[int(object_id)] = int(found.categories[k])
+        writer.close()
     writer.group.attrs["object_categories"] = {str(k): v for k, v in sorted(visible_categories.items())}
     return {"frame_stats": frame_stats, "segments": segments}
 

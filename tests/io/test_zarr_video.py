@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +54,24 @@ def test_same_frames_give_identical_bytes(tmp_path: Path, background: bool) -> N
     _write(tmp_path / "b.zarr", _frames(11), background=background)
     files = sorted(p.relative_to(tmp_path / "a.zarr") for p in (tmp_path / "a.zarr").rglob("*") if p.is_file())
     assert files and all((tmp_path / "a.zarr" / f).read_bytes() == (tmp_path / "b.zarr" / f).read_bytes() for f in files)
+
+
+def test_a_failed_video_leaves_no_shard_write_running(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    real_write = VideoWriter._write
+
+    def slow_write(self, start, blocks):  # a shard that takes a while to encode
+        time.sleep(0.3)
+        real_write(self, start, blocks)
+
+    monkeypatch.setattr(VideoWriter, "_write", slow_write)
+    frames = _frames(5)
+    with pytest.raises(RuntimeError, match="rendering failed"):
+        with VideoWriter(tmp_path / "v.zarr", 8, 8, 6, {}, frames_per_shard=4, background=True) as writer:
+            for frame in frames:
+                writer.append(**frame)  # the fourth frame starts the first shard's write on the writer's thread
+            raise RuntimeError("rendering failed")
+    # Left: the first shard whole, written before the block ended (its staging folder is removed next).
+    assert np.array_equal(open_video(tmp_path / "v.zarr").rgb[:4], np.stack([f["rgb"] for f in frames[:4]]))
 
 
 def test_wrong_dtype_or_shape_or_count_is_refused(tmp_path: Path) -> None:
