@@ -121,10 +121,15 @@ def _appearance(mesh: GlbMesh) -> dict:
     return {"face_uvs": uvs.astype(np.float32), "textures": textures, "face_material": face_texture.astype(np.uint16)}
 
 
+def trio_stem(semantic_txt: Path) -> str:
+    """The `<id>` every file of an HM3DSem trio is named after (`<id>.semantic.txt`, `<id>.glb`, ...)."""
+    return semantic_txt.name[: -len(SEMANTIC_TXT)]
+
+
 def hm3dsem_scene_id(semantic_txt: Path) -> str:
     """The scene id of an HM3DSem trio: in HM3D's own layout, `<NNNNN>-<id>/<id>.semantic.txt`, the numbered
     folder name (MVPd's video names and the `hm3d` split need it); elsewhere the files' `<id>`."""
-    stem = semantic_txt.name[: -len(SEMANTIC_TXT)]
+    stem = trio_stem(semantic_txt)
     folder = semantic_txt.parent.name
     return folder if re.fullmatch(rf"\d{{5}}-{re.escape(stem)}", folder) else stem
 
@@ -134,7 +139,7 @@ def read_hm3dsem(semantic_txt: Path, up_axis: str = "z") -> Scene:
     semantic_txt = Path(semantic_txt)
     if not semantic_txt.name.endswith(SEMANTIC_TXT):
         raise SceneError(f"{semantic_txt}: expected a *{SEMANTIC_TXT} file of an HM3DSem scene")
-    stem = semantic_txt.name[: -len(SEMANTIC_TXT)]
+    stem = trio_stem(semantic_txt)
     glb_path = semantic_txt.with_name(stem + ".glb")
     semantic_path = semantic_txt.with_name(stem + SEMANTIC_GLB)
     for required in (semantic_txt, glb_path, semantic_path):
