@@ -42,13 +42,13 @@ def split_videos(run: RunFolder, split: str | None) -> list[str] | None:
 DEMO_MODELS = ("geometric", "geometric+sp")
 
 
-def demo_model_report(run_dir: Path, address: str | None) -> None:
+def demo_model_report(run: RunFolder, address: str | None) -> None:
     """The demo's last step: `geometric` with and without self-prompting, reported into RUN/report."""
     from pipeline.models.report import ReportError, write_model_report
 
     try:
         with stage_progress() as observer:
-            path = write_model_report(RunFolder.open(run_dir), DEMO_MODELS, address=address, observer=observer)
+            path = write_model_report(run, DEMO_MODELS, address=address, observer=observer)
     except _input_errors() as error:
         fail(str(error))
     except ReportError as error:

@@ -13,7 +13,8 @@ from rich.table import Table
 from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, print_table, stage_progress
 from pipeline.cli.out_paths import check_out_file
 from pipeline.config import ConfigError, Job, load_job
-from pipeline.io.dataset_stats import COMPARISON_COLUMNS, SPLIT_ROWS, StatsError, dataset_stats, write_stats_picture
+from pipeline.io.dataset_stats import (COMPARISON_COLUMNS, SPLIT_ROWS, DatasetStats, StatsError, dataset_stats,
+                                       write_stats_picture)
 from pipeline.io.query import DEFAULT_TIMEOUT_S, QueryError, QueryTimeout, query, result_table, write_result
 from pipeline.runtime.executor import StageOrderError, StagePlan
 from pipeline.store.failures import RunStoppedError, stop_on_storage_failure
@@ -126,15 +127,16 @@ def demo(
         # Pictures are for looking at here: in the run folder, or for a run on object storage in its local folder.
         previews = run.root / "previews"
         pictures = write_overview(run, previews)
+        found = dataset_stats(run)
     except USAGE_ERRORS as error:
         fail(str(error))
     console.print(f"[bold]look at:[/] {len(pictures)} pictures in {previews}, e.g. {pictures[-3]} and {pictures[-1]}")
     console.print(f'[bold]query:[/] mvpd query {run.location} "select embodiment, count(*) videos, sum(frames) frames '
                   'from videos group by 1"')
-    stats(run_dir)
+    print_stats(found, top=15)
     from pipeline.cli.models import demo_model_report
 
-    demo_model_report(run_dir, address)
+    demo_model_report(run, address)
     _finish(report)
 
 
@@ -286,6 +288,13 @@ def stats(
         fail(str(error))
     except OSError as error:
         fail(f"{out}: cannot write the picture ({error}); choose a writable path")
+    print_stats(found, top)
+    if picture:
+        console.print(f"picture: {picture}")
+
+
+def print_stats(found: DatasetStats, top: int) -> None:
+    """Tables of `dataset_stats`: per embodiment, the `top` categories, splits, and the paper's comparison row."""
     table = Table("", *(row["embodiment"] for row in found.per_embodiment), title=f"{found.instances:,} object instances")
     for key, (label, fmt) in STATS_ROWS.items():
         table.add_row(label, *("-" if row[key] is None else fmt.format(row[key]) for row in found.per_embodiment))
@@ -309,8 +318,6 @@ def stats(
         comparison.add_row(label, f"{value:,.1f}" if isinstance(value, float) else f"{value:,}" if isinstance(value, int)
                            else str(value))
     print_table(comparison)
-    if picture:
-        console.print(f"picture: {picture}")
 
 
 def _cell(value: object) -> str:
