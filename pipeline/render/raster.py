@@ -190,42 +190,54 @@ def _draw(corners, starts, order, rects, nearest, pose, pixel_x, pixel_y, fx, fy
             winner[row, column] = -1
     tiles[:, :] = 0.0
     dirty[:, :] = False
-    camera = np.empty((3, 3))
     for cluster in order:
-        rect = rects[cluster]
+        rect = (rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3])
         if rect[1] < row_start or rect[0] >= row_stop:
             continue
         if _occluded(rect, nearest[cluster], row_start, row_stop, inverse_depth, tiles, dirty):
             continue
         for triangle in range(starts[cluster], starts[cluster + 1]):
-            for k in range(3):  # corners in the camera frame, relative to the camera centre
-                px = np.float64(corners[triangle, k, 0]) - pose[0, 3]
-                py = np.float64(corners[triangle, k, 1]) - pose[1, 3]
-                pz = np.float64(corners[triangle, k, 2]) - pose[2, 3]
-                camera[k, 0] = pose[0, 0] * px + pose[1, 0] * py + pose[2, 0] * pz
-                camera[k, 1] = pose[0, 1] * px + pose[1, 1] * py + pose[2, 1] * pz
-                camera[k, 2] = pose[0, 2] * px + pose[1, 2] * py + pose[2, 2] * pz
-            _draw_triangle(camera, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
+            # Scalars, not a (3, 3) array and its row views: a triangle's setup is a few dozen flops, and
+            # array views and a call per triangle cost as much again.
+            a = _to_camera(corners, triangle, 0, pose)
+            b = _to_camera(corners, triangle, 1, pose)
+            c = _to_camera(corners, triangle, 2, pose)
+            _draw_triangle(a, b, c, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
                            winner, tiles, dirty)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _edge(p, q):  # pragma: no cover (compiled)
-    """p x q: the normal of the plane through the camera centre and corners p and q."""
-    return (p[1] * q[2] - p[2] * q[1], p[2] * q[0] - p[0] * q[2], p[0] * q[1] - p[1] * q[0])
+def _to_camera(corners, triangle, k, pose):  # pragma: no cover (compiled)
+    """Corner k of a triangle in the camera frame, relative to the camera centre."""
+    px = np.float64(corners[triangle, k, 0]) - pose[0, 3]
+    py = np.float64(corners[triangle, k, 1]) - pose[1, 3]
+    pz = np.float64(corners[triangle, k, 2]) - pose[2, 3]
+    return (pose[0, 0] * px + pose[1, 0] * py + pose[2, 0] * pz,
+            pose[0, 1] * px + pose[1, 1] * py + pose[2, 1] * pz,
+            pose[0, 2] * px + pose[1, 2] * py + pose[2, 2] * pz)
 
 
-@numba.njit(nogil=True, cache=True, error_model="numpy")
-def _draw_triangle(camera, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth, winner,
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _edge(p, q, sign):  # pragma: no cover (compiled)
+    """sign (p x q): the normal of the plane through the camera centre and corners p and q, times +-1."""
+    return (sign * (p[1] * q[2] - p[2] * q[1]), sign * (p[2] * q[0] - p[0] * q[2]), sign * (p[0] * q[1] - p[1] * q[0]))
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _draw_triangle(a, b, c, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth, winner,
                    tiles, dirty):  # pragma: no cover (compiled)
-    """Z-buffer one triangle (corners relative to the camera, camera frame) into the band's pixels."""
-    a, b, c = camera[0], camera[1], camera[2]
-    e0, e1, e2 = _edge(a, b), _edge(b, c), _edge(c, a)
+    """Z-buffer one triangle (corners a, b, c relative to the camera, camera frame) into the band's pixels.
+
+    The edge planes are scaled by the sign of det(a, b, c), so that inside means all three edge values >= 0.
+    Negation is exact in floating point (x * -1 and -(x y + z) = (-x) y + (-z) bit for bit, but for the sign
+    of a zero, which no test here tells apart), so this decides exactly as testing w * sign < 0 would."""
+    e1 = _edge(b, c, 1.0)
     det = e1[0] * a[0] + e1[1] * a[1] + e1[2] * a[2]
     if det == 0.0:
         return  # degenerate, or seen exactly edge-on
     sign = 1.0 if det > 0.0 else -1.0
-    inverse_det = 1.0 / det
+    e0, e1, e2 = _edge(a, b, sign), _edge(b, c, sign), _edge(c, a, sign)
+    inverse_det = 1.0 / (det * sign)
     top, bottom = max(rect[0], row_start), min(rect[1], row_stop - 1)
     left, right = rect[2], rect[3]
     if a[2] <= 0.0 and b[2] <= 0.0 and c[2] <= 0.0:
@@ -248,16 +260,11 @@ def _draw_triangle(camera, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, 
         r0, r1, r2 = e0[1] * y + e0[2], e1[1] * y + e1[2], e2[1] * y + e2[2]
         first, last = left, right
         if right - left > NARROW:
-            # Each edge's value along the row is linear in x: e[0] x + r. The columns where all three have
-            # the triangle's sign, widened by a pixel (the exact test below decides).
-            x_from, x_to = -np.inf, np.inf
-            for slope, offset in ((e0[0] * sign, r0 * sign), (e1[0] * sign, r1 * sign), (e2[0] * sign, r2 * sign)):
-                if slope > 0.0:
-                    x_from = max(x_from, -offset / slope)
-                elif slope < 0.0:
-                    x_to = min(x_to, -offset / slope)
-                elif offset < 0.0:
-                    x_to = -np.inf
+            # Each edge's value along the row is linear in x: e[0] x + r. The columns where all three are
+            # >= 0, widened by a pixel (the exact test below decides).
+            x_from, x_to = _span(e0[0], r0, -np.inf, np.inf)
+            x_from, x_to = _span(e1[0], r1, x_from, x_to)
+            x_from, x_to = _span(e2[0], r2, x_from, x_to)
             if not x_from <= x_to:
                 continue
             if x_from != -np.inf:
@@ -268,7 +275,7 @@ def _draw_triangle(camera, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, 
         for column in range(first, last + 1):
             x = pixel_x[column]
             w0, w1, w2 = e0[0] * x + r0, e1[0] * x + r1, e2[0] * x + r2
-            if w0 * sign < 0.0 or w1 * sign < 0.0 or w2 * sign < 0.0:
+            if w0 < 0.0 or w1 < 0.0 or w2 < 0.0:
                 if entered:
                     break  # a row crosses a triangle in one run of pixels
                 continue
@@ -278,6 +285,16 @@ def _draw_triangle(camera, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, 
                 inverse_depth[row, column] = depth
                 winner[row, column] = triangle
                 dirty[(row - row_start) // TILE, column // TILE] = True
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _span(slope, offset, x_from, x_to):  # pragma: no cover (compiled)
+    """The interval [x_from, x_to] narrowed to where slope x + offset >= 0."""
+    if slope > 0.0:
+        return max(x_from, -offset / slope), x_to
+    if slope < 0.0:
+        return x_from, min(x_to, -offset / slope)
+    return (x_from, -np.inf) if offset < 0.0 else (x_from, x_to)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
