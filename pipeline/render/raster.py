@@ -81,8 +81,10 @@ class Rasterizer:
         height, width = len(pixel_y), len(pixel_x)
         self.inverse_depth = np.empty((height, width), np.float32)
         self.winner = np.empty((height, width), np.int64)
-        self._tiles: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}  # per band of rows: tiles, dirty flags
+        # Per band of rows: occlusion tiles, their dirty flags, and `_draw`'s scratch space.
+        self._scratch: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
         self.order = np.empty(0, np.int64)
+        self.rank = np.empty(len(mesh.starts) - 1, np.int64)  # position of each visible cluster in `order`
         self.rects = np.empty((len(mesh.starts) - 1, 4), np.int64)
         self.nearest = np.empty(len(mesh.starts) - 1, np.float64)
 
@@ -92,16 +94,18 @@ class Rasterizer:
         inside = _cull_clusters(self.mesh.low, self.mesh.high, pose, self.pixel_x, self.pixel_y, *self.focal,
                                 self.rects, self.nearest)
         self.order = inside[np.argsort(self.nearest[inside], kind="stable")]
+        self.rank[self.order] = np.arange(len(self.order))
 
     def draw_band(self, rows: slice, camera_to_world: np.ndarray) -> None:
         """Z-buffer the visible clusters into rows `rows`: the nearest reordered triangle per pixel (-1: none)."""
         band = (rows.start, rows.stop)
-        if band not in self._tiles:
+        if band not in self._scratch:
             shape = (-(-(rows.stop - rows.start) // TILE), -(-len(self.pixel_x) // TILE))
-            self._tiles[band] = (np.empty(shape, np.float32), np.empty(shape, np.bool_))
-        _draw(self.mesh.corners, self.mesh.starts, self.order, self.rects, self.nearest,
+            self._scratch[band] = (np.empty(shape, np.float32), np.empty(shape, np.bool_),
+                                   np.empty(len(self.mesh.corners), np.int64), np.empty_like(self.rects[:, :2]))
+        _draw(self.mesh.corners, self.mesh.starts, self.order, self.rank, self.rects, self.nearest,
               np.ascontiguousarray(camera_to_world, np.float64), self.pixel_x, self.pixel_y, *self.focal, rows.start,
-              rows.stop, self.inverse_depth, self.winner, *self._tiles[band])
+              rows.stop, self.inverse_depth, self.winner, *self._scratch[band])
 
     def resolve_band(self, rows: slice, camera_to_world: np.ndarray, miss: int, out: tuple[np.ndarray, ...]) -> None:
         """Intersect each pixel's ray of rows `rows` with its winning triangle, into `out` = (depth, face,
@@ -179,10 +183,16 @@ def _occluded(rect, nearest, row_start, row_stop, inverse_depth, tiles, dirty): 
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _draw(corners, starts, order, rects, nearest, pose, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
-          winner, tiles, dirty):  # pragma: no cover (compiled)
+def _draw(corners, starts, order, rank, rects, nearest, pose, pixel_x, pixel_y, fx, fy, row_start, row_stop,
+          inverse_depth, winner, tiles, dirty, deferred, groups):  # pragma: no cover (compiled)
     """Z-buffer (by inverse planar depth 1/t, 0 = nothing) the triangles of the clusters in `order` into rows
-    row_start..row_stop; `winner` gets the reordered index of the nearest triangle per pixel, or -1."""
+    row_start..row_stop; `winner` gets the reordered index of the nearest triangle per pixel, or -1.
+
+    Triangles facing away from the camera are drawn after all others: in a closed surface they lie behind
+    one facing the camera, so by then most of them are occluded and never reach the pixel loop. A pixel's
+    winner stays the one drawing in `order` gives (the nearest; of equal ones, the first in `order`), as
+    the second pass breaks ties by that order (`_drawn_before`). `deferred` (one slot per triangle) and
+    `groups` (two per cluster) are scratch space for the facing-away triangles of each cluster."""
     width = len(pixel_x)
     for row in range(row_start, row_stop):
         for column in range(width):
@@ -190,20 +200,50 @@ def _draw(corners, starts, order, rects, nearest, pose, pixel_x, pixel_y, fx, fy
             winner[row, column] = -1
     tiles[:, :] = 0.0
     dirty[:, :] = False
+    count = group_count = 0
     for cluster in order:
         rect = (rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3])
         if rect[1] < row_start or rect[0] >= row_stop:
             continue
         if _occluded(rect, nearest[cluster], row_start, row_stop, inverse_depth, tiles, dirty):
             continue
+        group_start = count
         for triangle in range(starts[cluster], starts[cluster + 1]):
             # Scalars, not a (3, 3) array and its row views: a triangle's setup is a few dozen flops, and
             # array views and a call per triangle cost as much again.
             a = _to_camera(corners, triangle, 0, pose)
             b = _to_camera(corners, triangle, 1, pose)
             c = _to_camera(corners, triangle, 2, pose)
-            _draw_triangle(a, b, c, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
-                           winner, tiles, dirty)
+            det = _determinant(a, b, c)
+            if det > 0.0:  # facing away (det = a . Ng, Ng the geometric normal): drawn in the second pass
+                deferred[count] = triangle
+                count += 1
+                continue
+            _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop,
+                           inverse_depth, winner, tiles, dirty, False, starts, rank)
+        if count > group_start:
+            groups[group_count, 0], groups[group_count, 1] = cluster, count
+            group_count += 1
+    group_start = 0
+    for group in range(group_count):
+        cluster, group_stop = groups[group, 0], groups[group, 1]
+        rect = (rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3])
+        if not _occluded(rect, nearest[cluster], row_start, row_stop, inverse_depth, tiles, dirty):
+            for triangle in deferred[group_start:group_stop]:
+                a = _to_camera(corners, triangle, 0, pose)
+                b = _to_camera(corners, triangle, 1, pose)
+                c = _to_camera(corners, triangle, 2, pose)
+                _draw_triangle(a, b, c, _determinant(a, b, c), triangle, rect, pixel_x, pixel_y, fx, fy, row_start,
+                               row_stop, inverse_depth, winner, tiles, dirty, True, starts, rank)
+        group_start = group_stop
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _drawn_before(triangle, other, starts, rank):  # pragma: no cover (compiled)
+    """True when `triangle` comes before `other` in the drawing order (clusters by rank, then index)."""
+    cluster = np.searchsorted(starts, triangle, side="right") - 1
+    other_cluster = np.searchsorted(starts, other, side="right") - 1
+    return (rank[cluster], triangle) < (rank[other_cluster], other)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
@@ -218,21 +258,28 @@ def _to_camera(corners, triangle, k, pose):  # pragma: no cover (compiled)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _determinant(a, b, c):  # pragma: no cover (compiled)
+    """det(a, b, c) = a . (b x c)."""
+    e = _edge(b, c, 1.0)
+    return e[0] * a[0] + e[1] * a[1] + e[2] * a[2]
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
 def _edge(p, q, sign):  # pragma: no cover (compiled)
     """sign (p x q): the normal of the plane through the camera centre and corners p and q, times +-1."""
     return (sign * (p[1] * q[2] - p[2] * q[1]), sign * (p[2] * q[0] - p[0] * q[2]), sign * (p[0] * q[1] - p[1] * q[0]))
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _draw_triangle(a, b, c, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth, winner,
-                   tiles, dirty):  # pragma: no cover (compiled)
-    """Z-buffer one triangle (corners a, b, c relative to the camera, camera frame) into the band's pixels.
+def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth, winner,
+                   tiles, dirty, tie_break, starts, rank):  # pragma: no cover (compiled)
+    """Z-buffer one triangle (corners a, b, c relative to the camera, camera frame; det = det(a, b, c)) into
+    the band's pixels. With `tie_break`, it also wins a pixel held at equal depth by a triangle it comes
+    before in the drawing order.
 
     The edge planes are scaled by the sign of det(a, b, c), so that inside means all three edge values >= 0.
     Negation is exact in floating point (x * -1 and -(x y + z) = (-x) y + (-z) bit for bit, but for the sign
     of a zero, which no test here tells apart), so this decides exactly as testing w * sign < 0 would."""
-    e1 = _edge(b, c, 1.0)
-    det = e1[0] * a[0] + e1[1] * a[1] + e1[2] * a[2]
     if det == 0.0:
         return  # degenerate, or seen exactly edge-on
     sign = 1.0 if det > 0.0 else -1.0
@@ -281,7 +328,9 @@ def _draw_triangle(a, b, c, triangle, rect, pixel_x, pixel_y, fx, fy, row_start,
                 continue
             entered = True
             depth = np.float32((w0 + w1 + w2) * inverse_det)  # 1 / t: the plane's N . d over det(a, b, c)
-            if depth > inverse_depth[row, column]:
+            held = inverse_depth[row, column]
+            if depth > held or (tie_break and depth == held and held > 0.0
+                                and _drawn_before(triangle, winner[row, column], starts, rank)):
                 inverse_depth[row, column] = depth
                 winner[row, column] = triangle
                 dirty[(row - row_start) // TILE, column // TILE] = True

@@ -142,6 +142,23 @@ def test_z_buffer_bands_of_any_split_give_the_same_hits() -> None:
     assert (winners[0] >= 0).all() and all(np.array_equal(winners[0], other) for other in winners[1:])
 
 
+def test_of_two_triangles_at_equal_depth_the_first_wins_whichever_faces_the_camera() -> None:
+    """The z-buffer draws triangles facing away from the camera last; a tie must still go to the triangle
+    first in the mesh, as in one pass. Dyadic corners and pixel rays make both depths exactly equal."""
+    from pipeline.render.raster import ClusteredMesh, Rasterizer
+
+    vertices = np.array([[-1.0, -1.0, 4.0], [1.0, -1.0, 4.0], [0.0, 1.0, 4.0]])
+    away, facing = [0, 1, 2], [0, 2, 1]  # det(a, b, c) > 0: normal (b - a) x (c - a) points away from the camera
+    camera = Camera(8, 8, 8.0, 8.0, 4.5, 4.5)  # pixel rays (u - 4) / 8: exact
+    for faces in ([away, facing], [facing, away]):
+        rasterizer = Rasterizer(ClusteredMesh(vertices, np.array(faces)), *camera.pixel_axes(), camera.fx, camera.fy)
+        rasterizer.visible_clusters(np.eye(4))
+        rasterizer.draw_band(slice(0, 8), np.eye(4))
+        covered = rasterizer.winner >= 0
+        assert covered.sum() >= 4
+        assert (rasterizer.mesh.face_ids[rasterizer.winner[covered]] == 0).all()
+
+
 def test_closest_hits_within_a_reach_are_those_without_it_and_farther_ones_are_misses() -> None:
     from pipeline.render.embree import EmbreeMesh
     from tests.render.tiny_scenes import room_scene
