@@ -23,7 +23,6 @@ import numba
 import numpy as np
 
 CLUSTER_SIZE = 64  # triangles per cluster: small boxes cull well, and 16 k clusters per 1 M triangles test fast
-NARROW = 6  # triangles at most this many pixels wide test every pixel of their rows (no span arithmetic)
 TILE = 8  # pixels per side of the occlusion tiles
 _BEHIND = 1e-6  # metres: a cluster corner nearer than this to the camera plane makes the cluster cover the image
 
@@ -302,22 +301,23 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
             return
         if _occluded((top, bottom, left, right), min(a[2], b[2], c[2]), row_start, row_stop, inverse_depth, tiles, dirty):
             return
+    # Each edge's value along a row is linear in x: e[0] x + r. Only the columns within a pixel of where all
+    # three are >= 0 are tested. That skips no pixel the exact test would take: a skipped column lies >= 1 / fx
+    # beyond the zero of some edge, where its value is -|e[0]| (>= 1 / fx), while rounding errs by ~1e-16
+    # |e[0]| (|x| + |zero|), far less for any x and zero near the image (and the value's sign is right when
+    # the zero is far away). The zeros use the edges' reciprocal slopes, one division per edge and triangle.
+    inverse0, inverse1, inverse2 = _reciprocal(e0[0]), _reciprocal(e1[0]), _reciprocal(e2[0])
     for row in range(top, bottom + 1):
         y = pixel_y[row]
         r0, r1, r2 = e0[1] * y + e0[2], e1[1] * y + e1[2], e2[1] * y + e2[2]
-        first, last = left, right
-        if right - left > NARROW:
-            # Each edge's value along the row is linear in x: e[0] x + r. The columns where all three are
-            # >= 0, widened by a pixel (the exact test below decides).
-            x_from, x_to = _span(e0[0], r0, -np.inf, np.inf)
-            x_from, x_to = _span(e1[0], r1, x_from, x_to)
-            x_from, x_to = _span(e2[0], r2, x_from, x_to)
-            if not x_from <= x_to:
-                continue
-            if x_from != -np.inf:
-                first = max(left, int(np.floor((x_from - pixel_x[0]) * fx)))
-            if x_to != np.inf:
-                last = min(right, int(np.ceil((x_to - pixel_x[0]) * fx)))
+        x_from, x_to = _span(e0[0], inverse0, r0, -np.inf, np.inf)
+        x_from, x_to = _span(e1[0], inverse1, r1, x_from, x_to)
+        x_from, x_to = _span(e2[0], inverse2, r2, x_from, x_to)
+        if not x_from <= x_to:
+            continue
+        # Clamped to the columns before the int conversion (a zero may lie far outside the image).
+        first = int(np.floor(min(max((x_from - pixel_x[0]) * fx, left), right + 1)))
+        last = int(np.ceil(max(min((x_to - pixel_x[0]) * fx, right), left - 1)))
         entered = False
         for column in range(first, last + 1):
             x = pixel_x[column]
@@ -337,13 +337,19 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _span(slope, offset, x_from, x_to):  # pragma: no cover (compiled)
-    """The interval [x_from, x_to] narrowed to where slope x + offset >= 0."""
+def _span(slope, inverse, offset, x_from, x_to):  # pragma: no cover (compiled)
+    """The interval [x_from, x_to] narrowed to where slope x + offset >= 0 (inverse: 1 / slope)."""
     if slope > 0.0:
-        return max(x_from, -offset / slope), x_to
+        return max(x_from, -offset * inverse), x_to
     if slope < 0.0:
-        return x_from, min(x_to, -offset / slope)
+        return x_from, min(x_to, -offset * inverse)
     return (x_from, -np.inf) if offset < 0.0 else (x_from, x_to)
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _reciprocal(value):  # pragma: no cover (compiled)
+    """1 / value, or 0 for 0 (an edge parallel to the rows bounds no column)."""
+    return 1.0 / value if value != 0.0 else 0.0
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
