@@ -357,9 +357,12 @@ def _resolve(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_s
              normal, direction):  # pragma: no cover (compiled)
     """Per pixel of rows row_start..row_stop: the ray (camera centre, R (x, y, 1) in float32, as the ray cast
     builds it) against its winning triangle with Embree's Moeller-Trumbore arithmetic (float32): t, u, v and
-    the geometric normal (v1 - v0) x (v2 - v0), normalised; a miss as `EmbreeMesh.cast_rows` writes it."""
+    the geometric normal (v1 - v0) x (v2 - v0), normalised; a miss as `EmbreeMesh.cast_rows` writes it.
+    What depends on the triangle alone is computed once per run of pixels with the same winner."""
     width = len(pixel_x)
     ox, oy, oz = np.float32(pose[0, 3]), np.float32(pose[1, 3]), np.float32(pose[2, 3])
+    zero = np.float32(0.0)
+    current, frame, unit = -1, _triangle_frame(np.zeros((3, 3), np.float32), ox, oy, oz), (zero, zero, zero)
     for row in range(row_start, row_stop):
         y = pixel_y[row]
         for column in range(width):
@@ -369,9 +372,13 @@ def _resolve(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_s
             dz = np.float32(pose[2, 0] * x + pose[2, 1] * y + pose[2, 2])
             direction[row, column, 0], direction[row, column, 1], direction[row, column, 2] = dx, dy, dz
             triangle = winner[row, column]
-            t = np.float32(0.0)
+            t = zero
             if triangle >= 0:
-                t, u, v, nx, ny, nz = _intersect(corners[triangle], ox, oy, oz, dx, dy, dz)
+                if triangle != current:
+                    current, frame = triangle, _triangle_frame(corners[triangle], ox, oy, oz)
+                    length = np.sqrt(frame[6] * frame[6] + frame[7] * frame[7] + frame[8] * frame[8])
+                    unit = (frame[6] / length, frame[7] / length, frame[8] / length)
+                t, u, v = _intersect(frame, dx, dy, dz)
             if not (t > 0.0 and t < np.inf):  # no triangle, or one the ray only grazes (no hit to report)
                 depth[row, column] = np.inf
                 face[row, column] = miss
@@ -381,26 +388,32 @@ def _resolve(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_s
             depth[row, column] = t
             face[row, column] = face_ids[triangle]
             barycentric[row, column, 0], barycentric[row, column, 1] = u, v
-            length = np.sqrt(nx * nx + ny * ny + nz * nz)
-            normal[row, column, 0] = nx / length
-            normal[row, column, 1] = ny / length
-            normal[row, column, 2] = nz / length
+            normal[row, column, 0], normal[row, column, 1], normal[row, column, 2] = unit
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _intersect(corners, ox, oy, oz, dx, dy, dz):  # pragma: no cover (compiled)
-    """Embree's Moeller-Trumbore in float32: (t, u, v) of the ray o + t d in the triangle's plane and the
-    geometric normal Ng = e2 x e1 = (v1 - v0) x (v2 - v0) (not normalised)."""
+def _triangle_frame(corners, ox, oy, oz):  # pragma: no cover (compiled)
+    """What Embree's Moeller-Trumbore (float32) computes per triangle and ray origin: the edges e1 = v0 - v1,
+    e2 = v2 - v0, the geometric normal Ng = e2 x e1 = (v1 - v0) x (v2 - v0) (not normalised), c = v0 - o,
+    and Ng . c; flat, in that order."""
     v0, v1, v2 = corners[0], corners[1], corners[2]
     e1x, e1y, e1z = v0[0] - v1[0], v0[1] - v1[1], v0[2] - v1[2]
     e2x, e2y, e2z = v2[0] - v0[0], v2[1] - v0[1], v2[2] - v0[2]
     nx, ny, nz = e2y * e1z - e2z * e1y, e2z * e1x - e2x * e1z, e2x * e1y - e2y * e1x
     cx, cy, cz = v0[0] - ox, v0[1] - oy, v0[2] - oz
+    return e1x, e1y, e1z, e2x, e2y, e2z, nx, ny, nz, cx, cy, cz, nx * cx + ny * cy + nz * cz
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _intersect(frame, dx, dy, dz):  # pragma: no cover (compiled)
+    """Embree's Moeller-Trumbore in float32: (t, u, v) of the ray o + t d in the plane of the triangle whose
+    `_triangle_frame` (for origin o) is `frame`."""
+    e1x, e1y, e1z, e2x, e2y, e2z, nx, ny, nz, cx, cy, cz, normal_dot_c = frame
     rx, ry, rz = cy * dz - cz * dy, cz * dx - cx * dz, cx * dy - cy * dx
     den = nx * dx + ny * dy + nz * dz
     sign = np.float32(1.0) if den >= 0 else np.float32(-1.0)
     absolute = abs(den)
     u = (rx * e2x + ry * e2y + rz * e2z) * sign / absolute
     v = (rx * e1x + ry * e1y + rz * e1z) * sign / absolute
-    t = (nx * cx + ny * cy + nz * cz) * sign / absolute
-    return t, u, v, nx, ny, nz
+    t = normal_dot_c * sign / absolute
+    return t, u, v
