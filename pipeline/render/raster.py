@@ -24,6 +24,7 @@ import numpy as np
 
 CLUSTER_SIZE = 64  # triangles per cluster: small boxes cull well, and 16 k clusters per 1 M triangles test fast
 TILE = 8  # pixels per side of the occlusion tiles
+SPAN_MARGIN = 1e-3  # pixels: a row's columns are tested this far beyond its edges' zeros (see _draw_triangle)
 _BEHIND = 1e-6  # metres: a cluster corner nearer than this to the camera plane makes the cluster cover the image
 
 
@@ -301,11 +302,12 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
             return
         if _occluded((top, bottom, left, right), min(a[2], b[2], c[2]), row_start, row_stop, inverse_depth, tiles, dirty):
             return
-    # Each edge's value along a row is linear in x: e[0] x + r. Only the columns within a pixel of where all
-    # three are >= 0 are tested. That skips no pixel the exact test would take: a skipped column lies >= 1 / fx
-    # beyond the zero of some edge, where its value is -|e[0]| (>= 1 / fx), while rounding errs by ~1e-16
-    # |e[0]| (|x| + |zero|), far less for any x and zero near the image (and the value's sign is right when
-    # the zero is far away). The zeros use the edges' reciprocal slopes, one division per edge and triangle.
+    # Each edge's value along a row is linear in x: e[0] x + r. Only the columns within SPAN_MARGIN of where
+    # all three are >= 0 are tested. That skips no pixel the exact test would take: a skipped column lies more
+    # than SPAN_MARGIN / fx beyond the zero z of some edge, where its value is -|e[0]| (> SPAN_MARGIN / fx),
+    # while rounding errs by at most ~3e-16 |e[0]| (|x| + |z|): for the image's |x| < 10 that is under 1e-14 / fx
+    # when |z| < 20, and when |z| is larger, |x - z| > |z| / 2 dwarfs it too. (The zeros are computed with the
+    # edges' reciprocal slopes, one division per edge and triangle, and err by ~1e-16 |z|.)
     inverse0, inverse1, inverse2 = _reciprocal(e0[0]), _reciprocal(e1[0]), _reciprocal(e2[0])
     for row in range(top, bottom + 1):
         y = pixel_y[row]
@@ -313,11 +315,13 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
         x_from, x_to = _span(e0[0], inverse0, r0, -np.inf, np.inf)
         x_from, x_to = _span(e1[0], inverse1, r1, x_from, x_to)
         x_from, x_to = _span(e2[0], inverse2, r2, x_from, x_to)
-        if not x_from <= x_to:
-            continue
+        low = (x_from - pixel_x[0]) * fx - SPAN_MARGIN  # in columns
+        high = (x_to - pixel_x[0]) * fx + SPAN_MARGIN
+        if not low <= high:
+            continue  # no column (or a triangle with non-finite corners, which never wins a pixel)
         # Clamped to the columns before the int conversion (a zero may lie far outside the image).
-        first = int(np.floor(min(max((x_from - pixel_x[0]) * fx, left), right + 1)))
-        last = int(np.ceil(max(min((x_to - pixel_x[0]) * fx, right), left - 1)))
+        first = int(np.ceil(min(max(low, left), right + 1)))
+        last = int(np.floor(max(min(high, right), left - 1)))
         entered = False
         for column in range(first, last + 1):
             x = pixel_x[column]
