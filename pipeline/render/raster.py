@@ -4,7 +4,8 @@ Why: a camera ray per pixel costs a BVH walk per pixel (~60 ms of CPU for 640x48
 house), while a z-buffer pays per visible triangle. The mesh is split once into clusters of nearby
 triangles; per frame, clusters outside the view are dropped, the rest are drawn nearest first, and a
 cluster whose box lies behind everything already drawn in the 8 x 8-pixel tiles it covers is skipped
-(occlusion culling), so the triangles of rooms behind walls are never set up.
+(occlusion culling), so the triangles of rooms behind walls are never set up. Triangles facing away from
+the camera are drawn last, when the surfaces in front of them are in the z-buffer and cull them.
 
 The coverage test is the ray-triangle test itself, not a projection: with a, b, c the corners relative
 to the camera, the ray d of a pixel centre hits the triangle at t > 0 exactly when det(a, b, d),
@@ -12,7 +13,7 @@ det(b, c, d) and det(c, a, d) all have the sign of det(a, b, c) (homogeneous ras
 Greer 1997). No clipping is needed (corners behind the camera are fine), hits nearer than the sensor's
 `near` are found like the ray cast finds them (VideoRenderer.trace turns them into misses), and a shared
 edge is computed bit for bit alike (negated) by both its triangles, so no pixel falls between them (ties
-on the edge go to the triangle drawn first). The winning triangle of each pixel is then intersected with
+on the edge go to the triangle first in the drawing order: clusters nearest first, then mesh order). The winning triangle of each pixel is then intersected with
 the pixel's ray by Embree's own Moeller-Trumbore arithmetic in float32, so depth, barycentrics and normal
 are the ray cast's to float precision (measured in benchmarks/bench_render.py).
 """
