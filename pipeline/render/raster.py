@@ -13,9 +13,10 @@ det(b, c, d) and det(c, a, d) all have the sign of det(a, b, c) (homogeneous ras
 Greer 1997). No clipping is needed (corners behind the camera are fine), hits nearer than the sensor's
 `near` are found like the ray cast finds them (VideoRenderer.trace turns them into misses), and a shared
 edge is computed bit for bit alike (negated) by both its triangles, so no pixel falls between them (ties
-on the edge go to the triangle first in the drawing order: clusters nearest first, then mesh order). The winning triangle of each pixel is then intersected with
-the pixel's ray by Embree's own Moeller-Trumbore arithmetic in float32, so depth, barycentrics and normal
-are the ray cast's to float precision (measured in benchmarks/bench_render.py).
+on the edge go to the triangle first in the drawing order: clusters nearest first, then mesh order). The
+winning triangle of each pixel is then intersected with the pixel's ray by Embree's own Moeller-Trumbore
+arithmetic in float32, so depth, barycentrics and normal are the ray cast's to float precision (measured
+in benchmarks/bench_render.py).
 """
 
 from __future__ import annotations
@@ -304,11 +305,11 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
         if _occluded((top, bottom, left, right), min(a[2], b[2], c[2]), row_start, row_stop, inverse_depth, tiles, dirty):
             return
     # Each edge's value along a row is linear in x: e[0] x + r. Only the columns within SPAN_MARGIN of where
-    # all three are >= 0 are tested. That skips no pixel the exact test would take: a skipped column lies more
-    # than SPAN_MARGIN / fx beyond the zero z of some edge, where its value is -|e[0]| (> SPAN_MARGIN / fx),
-    # while rounding errs by at most ~3e-16 |e[0]| (|x| + |z|): for the image's |x| < 10 that is under 1e-14 / fx
-    # when |z| < 20, and when |z| is larger, |x - z| > |z| / 2 dwarfs it too. (The zeros are computed with the
-    # edges' reciprocal slopes, one division per edge and triangle, and err by ~1e-16 |z|.)
+    # all three are >= 0 are tested. That skips no pixel the exact test would take: a skipped column x lies
+    # more than SPAN_MARGIN / fx beyond the zero z of some edge, where the value is -|e[0]| |x - z|, while its
+    # rounding errs by at most ~4e-16 |e[0]| (|x| + |z|) (z itself, from the edge's reciprocal slope: one
+    # division per edge and triangle, errs by ~2e-16 |z|). For |x|, |z| < 1e6 that is under 1e-9 |e[0]|, far
+    # below |e[0]| SPAN_MARGIN / fx for any focal length under 1e5 px; for larger |z|, |x - z| ~ |z| dwarfs it.
     inverse0, inverse1, inverse2 = _reciprocal(e0[0]), _reciprocal(e1[0]), _reciprocal(e2[0])
     for row in range(top, bottom + 1):
         y = pixel_y[row]
