@@ -4,7 +4,8 @@ Why: a camera ray per pixel costs a BVH walk per pixel (~60 ms of CPU for 640x48
 house), while a z-buffer pays per visible triangle. The mesh is split once into clusters of nearby
 triangles; per frame, clusters outside the view are dropped, the rest are drawn nearest first, and a
 cluster whose box lies behind everything already drawn in the 8 x 8-pixel tiles it covers is skipped
-(occlusion culling), so the triangles of rooms behind walls are never set up.
+(occlusion culling), so the triangles of rooms behind walls are never set up. Triangles facing away from
+the camera are drawn last, when the surfaces in front of them are in the z-buffer and cull them.
 
 The coverage test is the ray-triangle test itself, not a projection: with a, b, c the corners relative
 to the camera, the ray d of a pixel centre hits the triangle at t > 0 exactly when det(a, b, d),
@@ -12,9 +13,10 @@ det(b, c, d) and det(c, a, d) all have the sign of det(a, b, c) (homogeneous ras
 Greer 1997). No clipping is needed (corners behind the camera are fine), hits nearer than the sensor's
 `near` are found like the ray cast finds them (VideoRenderer.trace turns them into misses), and a shared
 edge is computed bit for bit alike (negated) by both its triangles, so no pixel falls between them (ties
-on the edge go to the triangle drawn first). The winning triangle of each pixel is then intersected with
-the pixel's ray by Embree's own Moeller-Trumbore arithmetic in float32, so depth, barycentrics and normal
-are the ray cast's to float precision (measured in benchmarks/bench_render.py).
+on the edge go to the triangle first in the drawing order: clusters nearest first, then mesh order). The
+winning triangle of each pixel is then intersected with the pixel's ray by Embree's own Moeller-Trumbore
+arithmetic in float32, so depth, barycentrics and normal are the ray cast's to float precision (measured
+in benchmarks/bench_render.py).
 """
 
 from __future__ import annotations
@@ -23,8 +25,8 @@ import numba
 import numpy as np
 
 CLUSTER_SIZE = 64  # triangles per cluster: small boxes cull well, and 16 k clusters per 1 M triangles test fast
-NARROW = 6  # triangles at most this many pixels wide test every pixel of their rows (no span arithmetic)
 TILE = 8  # pixels per side of the occlusion tiles
+SPAN_MARGIN = 1e-3  # pixels: a row's columns are tested this far beyond its edges' zeros (see _draw_triangle)
 _BEHIND = 1e-6  # metres: a cluster corner nearer than this to the camera plane makes the cluster cover the image
 
 
@@ -81,8 +83,10 @@ class Rasterizer:
         height, width = len(pixel_y), len(pixel_x)
         self.inverse_depth = np.empty((height, width), np.float32)
         self.winner = np.empty((height, width), np.int64)
-        self._tiles: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}  # per band of rows: tiles, dirty flags
+        # Per band of rows: occlusion tiles, their dirty flags, and `_draw`'s scratch space.
+        self._scratch: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
         self.order = np.empty(0, np.int64)
+        self.rank = np.empty(len(mesh.starts) - 1, np.int64)  # position of each visible cluster in `order`
         self.rects = np.empty((len(mesh.starts) - 1, 4), np.int64)
         self.nearest = np.empty(len(mesh.starts) - 1, np.float64)
 
@@ -92,16 +96,18 @@ class Rasterizer:
         inside = _cull_clusters(self.mesh.low, self.mesh.high, pose, self.pixel_x, self.pixel_y, *self.focal,
                                 self.rects, self.nearest)
         self.order = inside[np.argsort(self.nearest[inside], kind="stable")]
+        self.rank[self.order] = np.arange(len(self.order))
 
     def draw_band(self, rows: slice, camera_to_world: np.ndarray) -> None:
         """Z-buffer the visible clusters into rows `rows`: the nearest reordered triangle per pixel (-1: none)."""
         band = (rows.start, rows.stop)
-        if band not in self._tiles:
+        if band not in self._scratch:
             shape = (-(-(rows.stop - rows.start) // TILE), -(-len(self.pixel_x) // TILE))
-            self._tiles[band] = (np.empty(shape, np.float32), np.empty(shape, np.bool_))
-        _draw(self.mesh.corners, self.mesh.starts, self.order, self.rects, self.nearest,
+            self._scratch[band] = (np.empty(shape, np.float32), np.empty(shape, np.bool_),
+                                   np.empty(len(self.mesh.corners), np.int64), np.empty_like(self.rects[:, :2]))
+        _draw(self.mesh.corners, self.mesh.starts, self.order, self.rank, self.rects, self.nearest,
               np.ascontiguousarray(camera_to_world, np.float64), self.pixel_x, self.pixel_y, *self.focal, rows.start,
-              rows.stop, self.inverse_depth, self.winner, *self._tiles[band])
+              rows.stop, self.inverse_depth, self.winner, *self._scratch[band])
 
     def resolve_band(self, rows: slice, camera_to_world: np.ndarray, miss: int, out: tuple[np.ndarray, ...]) -> None:
         """Intersect each pixel's ray of rows `rows` with its winning triangle, into `out` = (depth, face,
@@ -179,10 +185,16 @@ def _occluded(rect, nearest, row_start, row_stop, inverse_depth, tiles, dirty): 
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _draw(corners, starts, order, rects, nearest, pose, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
-          winner, tiles, dirty):  # pragma: no cover (compiled)
+def _draw(corners, starts, order, rank, rects, nearest, pose, pixel_x, pixel_y, fx, fy, row_start, row_stop,
+          inverse_depth, winner, tiles, dirty, deferred, groups):  # pragma: no cover (compiled)
     """Z-buffer (by inverse planar depth 1/t, 0 = nothing) the triangles of the clusters in `order` into rows
-    row_start..row_stop; `winner` gets the reordered index of the nearest triangle per pixel, or -1."""
+    row_start..row_stop; `winner` gets the reordered index of the nearest triangle per pixel, or -1.
+
+    Triangles facing away from the camera are drawn after all others: in a closed surface they lie behind
+    one facing the camera, so by then most of them are occluded and never reach the pixel loop. A pixel's
+    winner stays the one drawing in `order` gives (the nearest; of equal ones, the first in `order`), as
+    the second pass breaks ties by that order (`_drawn_before`). `deferred` (one slot per triangle) and
+    `groups` (two per cluster) are scratch space for the facing-away triangles of each cluster."""
     width = len(pixel_x)
     for row in range(row_start, row_stop):
         for column in range(width):
@@ -190,42 +202,91 @@ def _draw(corners, starts, order, rects, nearest, pose, pixel_x, pixel_y, fx, fy
             winner[row, column] = -1
     tiles[:, :] = 0.0
     dirty[:, :] = False
-    camera = np.empty((3, 3))
+    count = group_count = 0
     for cluster in order:
-        rect = rects[cluster]
+        rect = (rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3])
         if rect[1] < row_start or rect[0] >= row_stop:
             continue
         if _occluded(rect, nearest[cluster], row_start, row_stop, inverse_depth, tiles, dirty):
             continue
+        group_start = count
         for triangle in range(starts[cluster], starts[cluster + 1]):
-            for k in range(3):  # corners in the camera frame, relative to the camera centre
-                px = np.float64(corners[triangle, k, 0]) - pose[0, 3]
-                py = np.float64(corners[triangle, k, 1]) - pose[1, 3]
-                pz = np.float64(corners[triangle, k, 2]) - pose[2, 3]
-                camera[k, 0] = pose[0, 0] * px + pose[1, 0] * py + pose[2, 0] * pz
-                camera[k, 1] = pose[0, 1] * px + pose[1, 1] * py + pose[2, 1] * pz
-                camera[k, 2] = pose[0, 2] * px + pose[1, 2] * py + pose[2, 2] * pz
-            _draw_triangle(camera, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
-                           winner, tiles, dirty)
+            # Scalars, not a (3, 3) array and its row views: a triangle's setup is a few dozen flops, and
+            # array views and a call per triangle cost as much again.
+            a = _to_camera(corners, triangle, 0, pose)
+            b = _to_camera(corners, triangle, 1, pose)
+            c = _to_camera(corners, triangle, 2, pose)
+            det = _determinant(a, b, c)
+            if det > 0.0:  # facing away (det = a . Ng, Ng the geometric normal): drawn in the second pass
+                deferred[count] = triangle
+                count += 1
+                continue
+            _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop,
+                           inverse_depth, winner, tiles, dirty, False, starts, rank)
+        if count > group_start:
+            groups[group_count, 0], groups[group_count, 1] = cluster, count
+            group_count += 1
+    group_start = 0
+    for group in range(group_count):
+        cluster, group_stop = groups[group, 0], groups[group, 1]
+        rect = (rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3])
+        if not _occluded(rect, nearest[cluster], row_start, row_stop, inverse_depth, tiles, dirty):
+            for triangle in deferred[group_start:group_stop]:
+                a = _to_camera(corners, triangle, 0, pose)
+                b = _to_camera(corners, triangle, 1, pose)
+                c = _to_camera(corners, triangle, 2, pose)
+                _draw_triangle(a, b, c, _determinant(a, b, c), triangle, rect, pixel_x, pixel_y, fx, fy, row_start,
+                               row_stop, inverse_depth, winner, tiles, dirty, True, starts, rank)
+        group_start = group_stop
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _edge(p, q):  # pragma: no cover (compiled)
-    """p x q: the normal of the plane through the camera centre and corners p and q."""
-    return (p[1] * q[2] - p[2] * q[1], p[2] * q[0] - p[0] * q[2], p[0] * q[1] - p[1] * q[0])
+def _drawn_before(triangle, other, starts, rank):  # pragma: no cover (compiled)
+    """True when `triangle` comes before `other` in the drawing order (clusters by rank, then index)."""
+    cluster = np.searchsorted(starts, triangle, side="right") - 1
+    other_cluster = np.searchsorted(starts, other, side="right") - 1
+    return (rank[cluster], triangle) < (rank[other_cluster], other)
 
 
-@numba.njit(nogil=True, cache=True, error_model="numpy")
-def _draw_triangle(camera, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth, winner,
-                   tiles, dirty):  # pragma: no cover (compiled)
-    """Z-buffer one triangle (corners relative to the camera, camera frame) into the band's pixels."""
-    a, b, c = camera[0], camera[1], camera[2]
-    e0, e1, e2 = _edge(a, b), _edge(b, c), _edge(c, a)
-    det = e1[0] * a[0] + e1[1] * a[1] + e1[2] * a[2]
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _to_camera(corners, triangle, k, pose):  # pragma: no cover (compiled)
+    """Corner k of a triangle in the camera frame, relative to the camera centre."""
+    px = np.float64(corners[triangle, k, 0]) - pose[0, 3]
+    py = np.float64(corners[triangle, k, 1]) - pose[1, 3]
+    pz = np.float64(corners[triangle, k, 2]) - pose[2, 3]
+    return (pose[0, 0] * px + pose[1, 0] * py + pose[2, 0] * pz,
+            pose[0, 1] * px + pose[1, 1] * py + pose[2, 1] * pz,
+            pose[0, 2] * px + pose[1, 2] * py + pose[2, 2] * pz)
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _determinant(a, b, c):  # pragma: no cover (compiled)
+    """det(a, b, c) = a . (b x c)."""
+    e = _edge(b, c, 1.0)
+    return e[0] * a[0] + e[1] * a[1] + e[2] * a[2]
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _edge(p, q, sign):  # pragma: no cover (compiled)
+    """sign (p x q): the normal of the plane through the camera centre and corners p and q, times +-1."""
+    return (sign * (p[1] * q[2] - p[2] * q[1]), sign * (p[2] * q[0] - p[0] * q[2]), sign * (p[0] * q[1] - p[1] * q[0]))
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth, winner,
+                   tiles, dirty, tie_break, starts, rank):  # pragma: no cover (compiled)
+    """Z-buffer one triangle (corners a, b, c relative to the camera, camera frame; det = det(a, b, c)) into
+    the band's pixels. With `tie_break`, it also wins a pixel held at equal depth by a triangle it comes
+    before in the drawing order.
+
+    The edge planes are scaled by the sign of det(a, b, c), so that inside means all three edge values >= 0.
+    Negation is exact in floating point (x * -1 and -(x y + z) = (-x) y + (-z) bit for bit, but for the sign
+    of a zero, which no test here tells apart), so this decides exactly as testing w * sign < 0 would."""
     if det == 0.0:
         return  # degenerate, or seen exactly edge-on
     sign = 1.0 if det > 0.0 else -1.0
-    inverse_det = 1.0 / det
+    e0, e1, e2 = _edge(a, b, sign), _edge(b, c, sign), _edge(c, a, sign)
+    inverse_det = 1.0 / (det * sign)
     top, bottom = max(rect[0], row_start), min(rect[1], row_stop - 1)
     left, right = rect[2], rect[3]
     if a[2] <= 0.0 and b[2] <= 0.0 and c[2] <= 0.0:
@@ -243,41 +304,58 @@ def _draw_triangle(camera, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, 
             return
         if _occluded((top, bottom, left, right), min(a[2], b[2], c[2]), row_start, row_stop, inverse_depth, tiles, dirty):
             return
+    # Each edge's value along a row is linear in x: e[0] x + r. Only the columns within SPAN_MARGIN of where
+    # all three are >= 0 are tested. That skips no pixel the exact test would take: a skipped column x lies
+    # more than SPAN_MARGIN / fx beyond the zero z of some edge, where the value is -|e[0]| |x - z|, while its
+    # rounding errs by at most ~4e-16 |e[0]| (|x| + |z|) (z itself, from the edge's reciprocal slope: one
+    # division per edge and triangle, errs by ~2e-16 |z|). For |x|, |z| < 1e6 that is under 1e-9 |e[0]|, far
+    # below |e[0]| SPAN_MARGIN / fx for any focal length under 1e5 px; for larger |z|, |x - z| ~ |z| dwarfs it.
+    inverse0, inverse1, inverse2 = _reciprocal(e0[0]), _reciprocal(e1[0]), _reciprocal(e2[0])
     for row in range(top, bottom + 1):
         y = pixel_y[row]
         r0, r1, r2 = e0[1] * y + e0[2], e1[1] * y + e1[2], e2[1] * y + e2[2]
-        first, last = left, right
-        if right - left > NARROW:
-            # Each edge's value along the row is linear in x: e[0] x + r. The columns where all three have
-            # the triangle's sign, widened by a pixel (the exact test below decides).
-            x_from, x_to = -np.inf, np.inf
-            for slope, offset in ((e0[0] * sign, r0 * sign), (e1[0] * sign, r1 * sign), (e2[0] * sign, r2 * sign)):
-                if slope > 0.0:
-                    x_from = max(x_from, -offset / slope)
-                elif slope < 0.0:
-                    x_to = min(x_to, -offset / slope)
-                elif offset < 0.0:
-                    x_to = -np.inf
-            if not x_from <= x_to:
-                continue
-            if x_from != -np.inf:
-                first = max(left, int(np.floor((x_from - pixel_x[0]) * fx)))
-            if x_to != np.inf:
-                last = min(right, int(np.ceil((x_to - pixel_x[0]) * fx)))
+        x_from, x_to = _span(e0[0], inverse0, r0, -np.inf, np.inf)
+        x_from, x_to = _span(e1[0], inverse1, r1, x_from, x_to)
+        x_from, x_to = _span(e2[0], inverse2, r2, x_from, x_to)
+        low = (x_from - pixel_x[0]) * fx - SPAN_MARGIN  # in columns
+        high = (x_to - pixel_x[0]) * fx + SPAN_MARGIN
+        if not low <= high:
+            continue  # no column (or a triangle with non-finite corners, which never wins a pixel)
+        # Clamped to the columns before the int conversion (a zero may lie far outside the image).
+        first = int(np.ceil(min(max(low, left), right + 1)))
+        last = int(np.floor(max(min(high, right), left - 1)))
         entered = False
         for column in range(first, last + 1):
             x = pixel_x[column]
             w0, w1, w2 = e0[0] * x + r0, e1[0] * x + r1, e2[0] * x + r2
-            if w0 * sign < 0.0 or w1 * sign < 0.0 or w2 * sign < 0.0:
+            if w0 < 0.0 or w1 < 0.0 or w2 < 0.0:
                 if entered:
                     break  # a row crosses a triangle in one run of pixels
                 continue
             entered = True
             depth = np.float32((w0 + w1 + w2) * inverse_det)  # 1 / t: the plane's N . d over det(a, b, c)
-            if depth > inverse_depth[row, column]:
+            held = inverse_depth[row, column]
+            if depth > held or (tie_break and depth == held and held > 0.0
+                                and _drawn_before(triangle, winner[row, column], starts, rank)):
                 inverse_depth[row, column] = depth
                 winner[row, column] = triangle
                 dirty[(row - row_start) // TILE, column // TILE] = True
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _span(slope, inverse, offset, x_from, x_to):  # pragma: no cover (compiled)
+    """The interval [x_from, x_to] narrowed to where slope x + offset >= 0 (inverse: 1 / slope)."""
+    if slope > 0.0:
+        return max(x_from, -offset * inverse), x_to
+    if slope < 0.0:
+        return x_from, min(x_to, -offset * inverse)
+    return (x_from, -np.inf) if offset < 0.0 else (x_from, x_to)
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _reciprocal(value):  # pragma: no cover (compiled)
+    """1 / value, or 0 for 0 (an edge parallel to the rows bounds no column)."""
+    return 1.0 / value if value != 0.0 else 0.0
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
@@ -285,9 +363,12 @@ def _resolve(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_s
              normal, direction):  # pragma: no cover (compiled)
     """Per pixel of rows row_start..row_stop: the ray (camera centre, R (x, y, 1) in float32, as the ray cast
     builds it) against its winning triangle with Embree's Moeller-Trumbore arithmetic (float32): t, u, v and
-    the geometric normal (v1 - v0) x (v2 - v0), normalised; a miss as `EmbreeMesh.cast_rows` writes it."""
+    the geometric normal (v1 - v0) x (v2 - v0), normalised; a miss as `EmbreeMesh.cast_rows` writes it.
+    What depends on the triangle alone is computed once per run of pixels with the same winner."""
     width = len(pixel_x)
     ox, oy, oz = np.float32(pose[0, 3]), np.float32(pose[1, 3]), np.float32(pose[2, 3])
+    zero = np.float32(0.0)
+    current, frame, unit = -1, _triangle_frame(np.zeros((3, 3), np.float32), ox, oy, oz), (zero, zero, zero)
     for row in range(row_start, row_stop):
         y = pixel_y[row]
         for column in range(width):
@@ -297,9 +378,13 @@ def _resolve(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_s
             dz = np.float32(pose[2, 0] * x + pose[2, 1] * y + pose[2, 2])
             direction[row, column, 0], direction[row, column, 1], direction[row, column, 2] = dx, dy, dz
             triangle = winner[row, column]
-            t = np.float32(0.0)
+            t = zero
             if triangle >= 0:
-                t, u, v, nx, ny, nz = _intersect(corners[triangle], ox, oy, oz, dx, dy, dz)
+                if triangle != current:
+                    current, frame = triangle, _triangle_frame(corners[triangle], ox, oy, oz)
+                    length = np.sqrt(frame[6] * frame[6] + frame[7] * frame[7] + frame[8] * frame[8])
+                    unit = (frame[6] / length, frame[7] / length, frame[8] / length)
+                t, u, v = _intersect(frame, dx, dy, dz)
             if not (t > 0.0 and t < np.inf):  # no triangle, or one the ray only grazes (no hit to report)
                 depth[row, column] = np.inf
                 face[row, column] = miss
@@ -309,26 +394,32 @@ def _resolve(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_s
             depth[row, column] = t
             face[row, column] = face_ids[triangle]
             barycentric[row, column, 0], barycentric[row, column, 1] = u, v
-            length = np.sqrt(nx * nx + ny * ny + nz * nz)
-            normal[row, column, 0] = nx / length
-            normal[row, column, 1] = ny / length
-            normal[row, column, 2] = nz / length
+            normal[row, column, 0], normal[row, column, 1], normal[row, column, 2] = unit
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _intersect(corners, ox, oy, oz, dx, dy, dz):  # pragma: no cover (compiled)
-    """Embree's Moeller-Trumbore in float32: (t, u, v) of the ray o + t d in the triangle's plane and the
-    geometric normal Ng = e2 x e1 = (v1 - v0) x (v2 - v0) (not normalised)."""
+def _triangle_frame(corners, ox, oy, oz):  # pragma: no cover (compiled)
+    """What Embree's Moeller-Trumbore (float32) computes per triangle and ray origin: the edges e1 = v0 - v1,
+    e2 = v2 - v0, the geometric normal Ng = e2 x e1 = (v1 - v0) x (v2 - v0) (not normalised), c = v0 - o,
+    and Ng . c; flat, in that order."""
     v0, v1, v2 = corners[0], corners[1], corners[2]
     e1x, e1y, e1z = v0[0] - v1[0], v0[1] - v1[1], v0[2] - v1[2]
     e2x, e2y, e2z = v2[0] - v0[0], v2[1] - v0[1], v2[2] - v0[2]
     nx, ny, nz = e2y * e1z - e2z * e1y, e2z * e1x - e2x * e1z, e2x * e1y - e2y * e1x
     cx, cy, cz = v0[0] - ox, v0[1] - oy, v0[2] - oz
+    return e1x, e1y, e1z, e2x, e2y, e2z, nx, ny, nz, cx, cy, cz, nx * cx + ny * cy + nz * cz
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _intersect(frame, dx, dy, dz):  # pragma: no cover (compiled)
+    """Embree's Moeller-Trumbore in float32: (t, u, v) of the ray o + t d in the plane of the triangle whose
+    `_triangle_frame` (for origin o) is `frame`."""
+    e1x, e1y, e1z, e2x, e2y, e2z, nx, ny, nz, cx, cy, cz, normal_dot_c = frame
     rx, ry, rz = cy * dz - cz * dy, cz * dx - cx * dz, cx * dy - cy * dx
     den = nx * dx + ny * dy + nz * dz
     sign = np.float32(1.0) if den >= 0 else np.float32(-1.0)
     absolute = abs(den)
     u = (rx * e2x + ry * e2y + rz * e2z) * sign / absolute
     v = (rx * e1x + ry * e1y + rz * e1z) * sign / absolute
-    t = (nx * cx + ny * cy + nz * cz) * sign / absolute
-    return t, u, v, nx, ny, nz
+    t = normal_dot_c * sign / absolute
+    return t, u, v

@@ -4,8 +4,8 @@ per scene in 8-ray packets (embree.py), which also serves every other ray (the b
 Why per-ray hits: each pixel gets the exact triangle, so labels never blend across objects and depth is
 exact (no depth-buffer quantisation, no anti-aliasing between ids). The z-buffer finds the same triangle
 as the ray (99.999 % of pixels; the rest are ties on shared edges) and intersects the pixel's ray with it,
-for 0.8x the CPU time and 0.83x the wall time of the packet cast on the 1 M-triangle benchmark house with
-2 threads (benchmarks/bench_render.py `primary_visibility`; ~0.7x the CPU time on one thread).
+for half the CPU and wall time of the packet cast on the 1 M-triangle benchmark house with 2 threads
+(benchmarks/bench_render.py `primary_visibility`, results/render_primary.json).
 
 Rays go through pixel centres (u + 0.5, v + 0.5) (schemas/README.md). Camera-frame ray directions are
 (x, y, 1) with x = (u + 0.5 - cx) / fx and y = (v + 0.5 - cy) / fy, i.e. NOT normalised: Embree's hit

@@ -106,6 +106,46 @@ def test_the_z_buffer_finds_the_hits_of_the_ray_cast() -> None:
         assert np.array_equal(raster["direction"], rays["direction"])
 
 
+def test_the_z_buffer_winner_is_that_of_testing_every_triangle_at_every_pixel() -> None:
+    """The pixel spans, the occlusion culling and the second pass for facing-away triangles only skip work:
+    each pixel's winner is what the bare test gives for every triangle at every pixel (edge values with the
+    sign of det(a, b, c) all >= 0, the largest float32 1 / t, ties to the first in the drawing order). Random
+    triangles with slivers, coincident pairs of opposite facing and corners behind the camera."""
+    from pipeline.render.raster import ClusteredMesh, Rasterizer
+
+    rng = np.random.default_rng(7)
+    centres = rng.uniform([-2.0, -1.5, 0.5], [2.0, 1.5, 6.0], (150, 1, 3))
+    corners = centres + rng.normal(0.0, 0.4, (150, 3, 3))
+    corners[:30, 2] = corners[:30, 0] + (corners[:30, 1] - corners[:30, 0]) * rng.uniform(0.0, 1.0, (30, 1)) + 1e-4
+    corners = np.concatenate([corners, corners[-20:, ::-1]])  # the last 20 again, facing the other way
+    vertices, faces = corners.reshape(-1, 3), np.arange(len(corners) * 3).reshape(-1, 3)
+    camera = Camera(48, 36, 30.0, 30.0, 23.5, 17.5)
+    rasterizer = Rasterizer(ClusteredMesh(vertices, faces), *camera.pixel_axes(), camera.fx, camera.fy)
+    rasterizer.visible_clusters(np.eye(4))
+    rasterizer.draw_band(slice(0, camera.height), np.eye(4))
+
+    mesh = rasterizer.mesh
+    order = np.concatenate([np.arange(mesh.starts[c], mesh.starts[c + 1]) for c in rasterizer.order])
+    a, b, c = (mesh.corners[order, k].astype(np.float64) for k in range(3))  # the camera sits at the origin
+    pixel_x, pixel_y = camera.pixel_axes()
+    x, y = pixel_x[None, :, None], pixel_y[:, None, None]  # (rows, columns, triangles) below
+    normal = np.cross(b, c)
+    det = normal[:, 0] * a[:, 0] + normal[:, 1] * a[:, 1] + normal[:, 2] * a[:, 2]
+    inside = np.ones((camera.height, camera.width, len(order)), bool)
+    total = 0.0
+    for p, q in ((a, b), (b, c), (c, a)):
+        edge = np.cross(p, q)
+        value = edge[:, 0] * x + (edge[:, 1] * y + edge[:, 2])
+        inside &= value * np.sign(det) >= 0.0
+        total = total + value
+    depth = np.where(inside & (det != 0.0), (total * (1.0 / det)).astype(np.float32), np.float32(0.0))
+    best = depth.max(axis=-1)
+    first = np.argmax((depth == best[..., None]) & (best[..., None] > 0.0), axis=-1)
+    expected = np.where(best > 0.0, order[first], -1)
+    assert (expected >= 0).mean() > 0.3 and (det > 0.0).any() and (det < 0.0).any()
+    assert np.array_equal(rasterizer.winner, expected)
+
+
 def test_the_z_buffer_sees_triangles_reaching_behind_the_camera_and_nearer_than_near() -> None:
     # A floor under the camera reaches 5 m behind it (the z-buffer clips nothing), and a small square 5 mm in
     # front of the camera is hit as the ray cast hits it (VideoRenderer.trace then makes it a miss).
@@ -140,6 +180,23 @@ def test_z_buffer_bands_of_any_split_give_the_same_hits() -> None:
             rasterizer.draw_band(band, pose)
         winners.append(rasterizer.winner.copy())
     assert (winners[0] >= 0).all() and all(np.array_equal(winners[0], other) for other in winners[1:])
+
+
+def test_of_two_triangles_at_equal_depth_the_first_wins_whichever_faces_the_camera() -> None:
+    """The z-buffer draws triangles facing away from the camera last; a tie must still go to the triangle
+    first in the mesh, as in one pass. Dyadic corners and pixel rays make both depths exactly equal."""
+    from pipeline.render.raster import ClusteredMesh, Rasterizer
+
+    vertices = np.array([[-1.0, -1.0, 4.0], [1.0, -1.0, 4.0], [0.0, 1.0, 4.0]])
+    away, facing = [0, 1, 2], [0, 2, 1]  # det(a, b, c) > 0: normal (b - a) x (c - a) points away from the camera
+    camera = Camera(8, 8, 8.0, 8.0, 4.5, 4.5)  # pixel rays (u - 4) / 8: exact
+    for faces in ([away, facing], [facing, away]):
+        rasterizer = Rasterizer(ClusteredMesh(vertices, np.array(faces)), *camera.pixel_axes(), camera.fx, camera.fy)
+        rasterizer.visible_clusters(np.eye(4))
+        rasterizer.draw_band(slice(0, 8), np.eye(4))
+        covered = rasterizer.winner >= 0
+        assert covered.sum() >= 4
+        assert (rasterizer.mesh.face_ids[rasterizer.winner[covered]] == 0).all()
 
 
 def test_closest_hits_within_a_reach_are_those_without_it_and_farther_ones_are_misses() -> None:
