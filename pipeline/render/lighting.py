@@ -253,7 +253,7 @@ def _shade(hits: RayHits, records: np.ndarray | None = None, planes: np.ndarray 
     return out
 
 
-@numba.njit(nogil=True)
+@numba.njit(nogil=True, cache=True)
 def _shade_pixels(records, planes, from_records, interpolate, spot, face, barycentric, normal, direction, depth,
                   scale_steps, decode, encode, out, principled, diffuse_table, specular_table,
                   lit_indirectly, indirect, indirect_scale, first_row, block):  # pragma: no cover (compiled)
