@@ -20,7 +20,9 @@ and the glossy term its lobe sends to the eye; the shader reflects both (materia
 3. Filter. Each gather point averages the block of interleave x interleave points around it (every
    subset once), weighted by how alike the surfaces are (normal, plane distance, distance), and then once more
    (fewer blotches from the few lights of each subset); every pixel then takes
-   the bilinear mix of its four nearest gather points under the same geometric weights.
+   the bilinear mix of its four nearest gather points under the same geometric weights. Pixels whose surface
+   none of the four lies on (narrower than the stride: door frames, box tops) gather on a finer grid of their
+   own (`_fill_orphans`).
 
 The pattern of directions is drawn once from the job's seed: a still camera gives the same frame every
 time (no flicker), and the same job gives the same bytes. Virtual lights clamp the 1/r^2 of near pairs
@@ -69,6 +71,8 @@ CHANNELS = 6
 ROULETTE_BELOW = 2.0
 # Rays per gather point that find the surfaces nearer than the clamp distance (bias compensation).
 NEAR_FIELD_RAYS = 8
+# Orphan blocks (`_fill_orphans`) share one gather point per ORPHAN_CELL x ORPHAN_CELL blocks (6 x 6 pixels).
+ORPHAN_CELL = 3
 _SEED_STREAM = 0x1D1EC7  # separates the pattern's draws from every other use of the job seed
 
 
@@ -280,17 +284,27 @@ class IndirectGather:
 
     def _fill_orphans(self, hits: RayHits, origin: np.ndarray, orphans: np.ndarray, lights: VirtualLights,
                       starts: np.ndarray, camera_to_world: np.ndarray, out: np.ndarray) -> None:
-        """Gather the light of the `orphans` blocks of `out` anew. Their surface has no gather point among the four
+        """Gather the light of the `orphans` blocks of `out` anew. Their surface has none of the four gather points
         around them: a door frame, a wall seen edge-on, the top of a box, narrower than the gather stride. Taking
         a point of another surface instead left 1-3 % of the pixels with 10-50 % of the squared error against the
-        reference; here each orphan block is a gather point of its own, filtered with the orphans around it."""
+        reference. Here every ORPHAN_CELL x ORPHAN_CELL blocks with an orphan get a gather point (at their first
+        orphan), filtered with the points around it, which lends its light to the orphans of its cell (one point
+        per block measured the same PSNR at 1.5x the extra cost)."""
         if not orphans.any():
             return
-        block = INDIRECT_BLOCK
-        grid = _GatherGrid(hits.depth[::block, ::block], hits.normal[::block, ::block],
-                           hits.direction[::block, ::block], origin, 1)
-        grid.depth[~orphans] = np.inf
-        out[orphans] = self._gather_filtered(grid, lights, starts, camera_to_world)[orphans]
+        rows, columns = orphans.shape
+        cell = ORPHAN_CELL
+        cells = np.zeros((-(-rows // cell), cell, -(-columns // cell), cell), np.bool_)
+        cells.reshape(cell * cells.shape[0], cell * cells.shape[2])[:rows, :columns] = orphans
+        cells = cells.transpose(0, 2, 1, 3).reshape(cells.shape[0], cells.shape[2], cell * cell)
+        first = cells.argmax(axis=2)
+        block_rows = cell * np.arange(cells.shape[0])[:, None] + first // cell
+        block_columns = cell * np.arange(cells.shape[1])[None, :] + first % cell
+        pixels = (INDIRECT_BLOCK * block_rows, INDIRECT_BLOCK * block_columns)
+        grid = _GatherGrid(hits.depth[pixels], hits.normal[pixels], hits.direction[pixels], origin, 1)
+        grid.depth[~cells.any(axis=2)] = np.inf
+        combined = self._gather_filtered(grid, lights, starts, camera_to_world)
+        out[orphans] = np.repeat(np.repeat(combined, cell, axis=0), cell, axis=1)[:rows, :columns][orphans]
 
     def _near_field(self, points: np.ndarray, normals: np.ndarray, eyes: np.ndarray, depth: np.ndarray,
                     local: np.ndarray, camera_to_world: np.ndarray, gathered: np.ndarray) -> None:
