@@ -33,6 +33,7 @@ BLENDER_SPOT_SCALE before the shared exposure. Results: benchmarks/results/light
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import shutil
@@ -52,6 +53,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_render import planned_poses, run_ours, spread  # noqa: E402
 from pipeline.config import Embodiment, Illumination, IndirectLight, Sensor  # noqa: E402
 from pipeline.render.lighting import linear_to_srgb, srgb_to_linear  # noqa: E402
+from pipeline.render.raycaster import RayHits  # noqa: E402
 from pipeline.render.renderer import VideoRenderer  # noqa: E402
 from pipeline.scenes.scene import Scene  # noqa: E402
 
@@ -299,7 +301,7 @@ def indirect_cpu_ms(scene: Scene, poses: np.ndarray, repeats: int = 3) -> dict[s
     """CPU milliseconds per frame of the indirect light alone (IndirectGather.irradiance, every thread), per
     repeat over `poses`, and their median."""
     renderer = VideoRenderer(scene, Embodiment(name="bench", sensor=Sensor(), illumination=mvpd_spot()), EXPOSURE)
-    traced = [(renderer.trace(pose), pose) for pose in poses]
+    traced = [(copied(renderer.trace(pose)), pose) for pose in poses]
     renderer.indirect.irradiance(*traced[0])  # compiled and warm
     per_repeat = []
     for _ in range(repeats):
@@ -308,6 +310,11 @@ def indirect_cpu_ms(scene: Scene, poses: np.ndarray, repeats: int = 3) -> dict[s
             renderer.indirect.irradiance(hits, pose)
         per_repeat.append(1000.0 * (time.process_time() - started) / len(traced))
     return {"per_repeat": [round(v, 1) for v in per_repeat], "median": round(float(np.median(per_repeat)), 1)}
+
+
+def copied(hits: RayHits) -> RayHits:
+    """A copy of `hits`: the caster writes every pose's hits into the same buffers."""
+    return RayHits(*(np.array(getattr(hits, field.name)) for field in dataclasses.fields(hits)))
 
 
 def measure_speed(scene: Scene, poses: np.ndarray, args: argparse.Namespace, folder: Path,

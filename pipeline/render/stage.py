@@ -36,7 +36,8 @@ if TYPE_CHECKING:
 # 3: Embree 4 packets instead of open3d's single rays (a few pixels per frame hit the other triangle of a shared edge).
 # 4: camera hits from the clustered z-buffer (raster.py): again a few pixels per frame on shared edges, and
 #    depth / barycentrics within float32 rounding of the ray cast's.
-RENDER_ALGORITHM_VERSION = 4
+# 5: spot light: blocks of a surface no nearby gather point lies on gather their indirect light themselves.
+RENDER_ALGORITHM_VERSION = 5
 # zstd level of the Zarr arrays. Measured on the detail-1.0 house at 640x480, zstd alone per frame
 # (rgb + depth + panoptic; spot / ambient light): level 1: 154 / 79 kB, 2.5 / 1.4 ms (over the 150 kB
 # budget); 3: 146 / 75 kB, 3.1 / 1.7 ms; 5: 128 / 67 kB, 7.4 / 5.6 ms. Zarr's own work adds ~2-3 ms.

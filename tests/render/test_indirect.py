@@ -195,3 +195,28 @@ def test_light_meeting_a_surface_at_a_grazing_angle_bounces_on_forward_only_thro
         # Base and lobe together reflect about what the tables say, within Cycles' own imbalance (its base
         # keeps 1 - A of the outgoing side, its widened lobes lose a little).
         assert reflected == pytest.approx(gather._reflectance(normals[:1], incoming[:1], rho[:1])[0, 0], rel=0.1)
+
+
+def test_a_surface_narrower_than_a_gather_cell_gathers_its_own_light() -> None:
+    """A plank seen edge-on (3 px wide, no gather point on it) facing the one wall that reflects (the right one;
+    the others are black): its blocks get the light of points on the plank, as the estimator finds there."""
+    _, sides = _box(4.0)
+    builder = _Builder()
+    for index, corners in enumerate(sides):
+        builder.quad(np.array(corners, np.float32), index + 1, (230, 230, 230) if index == 3 else (0, 0, 0))
+    plank = np.array([[-0.5, -1.0, 1.5], [-0.5, -1.0, 1.9], [-0.5, 1.0, 1.9], [-0.5, 1.0, 1.5]], np.float32)
+    builder.quad(plank, 7, (GREY, GREY, GREY))
+    scene = builder.scene("box with a plank")
+    light = Illumination(kind="spot", power=20.0, indirect=IndirectLight(
+        bounces=1, traced_bounces=1, virtual_lights=1024, gather_stride=12, interleave=2, clamp_distance=0.1))
+    renderer = VideoRenderer(scene, embodiment(light=light), exposure=2.0)
+    pose = look_at(np.zeros(3), np.array([0.0, 0.0, 2.0]))
+    hits = renderer.trace(pose)
+    blocks = renderer.indirect.irradiance(hits, pose)
+    on_plank = hits.face[::2, ::2] >= 12  # the box's 12 triangles come first
+    assert on_plank.sum(axis=1).max() <= 2 and on_plank.sum(axis=0).max() >= 10  # narrow and tall (in blocks)
+    points = pose[:3, 3] + hits.depth[::2, ::2][on_plank][:, None] * hits.direction[::2, ::2][on_plank]
+    normals = np.repeat(np.array([[1.0, 0.0, 0.0]]), len(points), 0)
+    expected = renderer.indirect.irradiance_at(points, normals, pose)[:, 0].mean()
+    assert expected > 0.0
+    assert blocks[on_plank][:, 0].mean() == pytest.approx(expected, rel=0.25)
