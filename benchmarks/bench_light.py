@@ -84,6 +84,23 @@ def peer_python(variable: str, default: str) -> str | None:
     return path if Path(path).exists() else None
 
 
+def cycles_python() -> str | None:
+    return peer_python("BPY_PYTHON", "/work/venvs/bpy/bin/python")
+
+
+def mitsuba_python() -> str | None:
+    return peer_python("MITSUBA_PYTHON", "/work/venvs/mitsuba/bin/python")
+
+
+def peer_version(python: str | None, package: str) -> str | None:
+    """The installed version of a peer's package (read from its metadata, without importing the renderer)."""
+    if python is None:
+        return None
+    done = subprocess.run([python, "-c", f"import importlib.metadata as m; print(m.version({package!r}))"],
+                          capture_output=True, text=True)
+    return done.stdout.strip() if done.returncode == 0 else None
+
+
 def export(scene: Scene, poses: np.ndarray, folder: Path, renders: list[dict], mitsuba: list[dict], threads: int) -> None:
     """Write what the peer scripts read: the mesh with linear vertex colours, poses, settings."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -151,7 +168,8 @@ def load_cached(name: str, indices: Sequence[int]) -> list[np.ndarray] | None:
     return [cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in paths]
 
 
-def cache_renders(name: str, radiance: np.ndarray, render: dict, poses: np.ndarray, threads: int) -> list[np.ndarray]:
+def cache_renders(name: str, radiance: np.ndarray, render: dict, poses: np.ndarray, threads: int,
+                  bpy_version: str | None) -> list[np.ndarray]:
     """Encode Cycles renders like ours, store them as `<name>_XX.png` (XX: the index of the quality pose) with
     `<name>.json` saying how they were made."""
     images = [to_8bit(image, BLENDER_SPOT_SCALE * EXPOSURE) for image in radiance]
@@ -159,7 +177,7 @@ def cache_renders(name: str, radiance: np.ndarray, render: dict, poses: np.ndarr
     for index, image in zip(render.get("poses", range(len(images))), images):
         save_png(RESULTS / f"{name}_{index:02d}.png", image)
     (RESULTS / f"{name}.json").write_text(json.dumps({
-        "renderer": f"Blender Cycles (bpy from PyPI, benchmarks/peer_cycles.py), CPU, {threads} threads",
+        "renderer": f"Blender Cycles (bpy {bpy_version} from PyPI, benchmarks/peer_cycles.py), CPU, {threads} threads",
         "settings": {**render, "filter_width_px": 0.01, "light_paths": f"{render['bounces']} bounces of every kind",
                      "material": "Principled BSDF, specular IOR level 1.0, IOR 1.5, roughness 0.5, base colour = vertex colour",
                      "light": "spot 20 W parented to the camera, spot_size 180, blend 1.0, radius 0",
@@ -226,7 +244,9 @@ def measure(args: argparse.Namespace, folder: Path) -> dict[str, Any]:
                               "resolution": [640, 480], "threads": args.threads, "exposure": EXPOSURE,
                               "power_w": POWER, "quality_poses": len(poses), "speed_frames": len(speed_poses),
                               "ours": mvpd_spot().model_dump(mode="json")}
-    cycles = peer_python("BPY_PYTHON", "/work/venvs/bpy/bin/python")
+    cycles = cycles_python()
+    bpy_version = peer_version(cycles, "bpy")
+    result["peers"] = {"bpy": bpy_version, "mitsuba": peer_version(mitsuba_python(), "mitsuba")}
     cycles_ok = False
     if cycles is None:
         print("Cycles skipped: no bpy virtualenv (bash benchmarks/setup_light_peers.sh, or set BPY_PYTHON)")
@@ -234,13 +254,13 @@ def measure(args: argparse.Namespace, folder: Path) -> dict[str, Any]:
         cycles_ok = run_peer(cycles, "peer_cycles.py", folder / "peer", folder / "cycles.log")
     if cycles_ok and authors is None:
         authors = cache_renders("cycles16", np.load(folder / "peer" / "cycles16.npz")["images"], AUTHORS, poses,
-                                args.threads)
+                                args.threads, bpy_version)
     if cycles_ok and reference is None:
         reference = cache_renders("reference", np.load(folder / "peer" / "reference.npz")["images"], REFERENCE, poses,
-                                  args.threads)
+                                  args.threads, bpy_version)
     if cycles_ok and floor is None:
         floor = cache_renders(REFERENCE_FLOOR["name"], np.load(folder / "peer" / "reference_seed2.npz")["images"],
-                              REFERENCE_FLOOR, poses, args.threads)
+                              REFERENCE_FLOOR, poses, args.threads, bpy_version)
     if reference is None:
         print("no converged reference (cached PNGs missing and Cycles unavailable): quality not measured")
     quality = measure_quality(scene, poses, reference, authors, folder / "peer" if cycles_ok else None)
@@ -261,7 +281,8 @@ def measure_speed_only(args: argparse.Namespace, folder: Path) -> dict[str, Any]
     export(scene, np.concatenate([speed_poses[: args.poses], speed_poses]), folder / "peer", [], [], args.threads)
     result: dict[str, Any] = {"scene": {"triangles": scene.triangle_count, "poses": pose_source},
                               "resolution": [640, 480], "threads": args.threads, "speed_frames": len(speed_poses),
-                              "ours": mvpd_spot().model_dump(mode="json"), "quality": {}}
+                              "ours": mvpd_spot().model_dump(mode="json"), "quality": {},
+                              "peers": {"mitsuba": peer_version(mitsuba_python(), "mitsuba")}}
     result["speed"] = measure_speed(scene, speed_poses, args, folder, cycles_ok=False)
     result["targets"] = targets(result)
     return result
@@ -323,7 +344,7 @@ def measure_speed(scene: Scene, poses: np.ndarray, args: argparse.Namespace, fol
     Cycles 1 spp; ratios of medians. The machine is shared: CPU seconds (every thread of the process) say
     what a frame costs whatever else runs, wall seconds what this run saw."""
     body = Embodiment(name="bench", sensor=Sensor(), illumination=mvpd_spot())
-    mitsuba = peer_python("MITSUBA_PYTHON", "/work/venvs/mitsuba/bin/python")
+    mitsuba = mitsuba_python()
     if mitsuba is None:
         print("Mitsuba skipped: no mitsuba virtualenv (bash benchmarks/setup_light_peers.sh, or set MITSUBA_PYTHON)")
     wall, cpu, their_wall, their_cpu = [], [], [], []
