@@ -65,18 +65,21 @@ def _procedural_refs(source: ProceduralSource) -> list[SceneRef]:
 
 
 def _hm3dsem_refs(source: Hm3dSemSource) -> list[SceneRef]:
-    from pipeline.scenes.hm3dsem import hm3dsem_scene_id, trio_stem
+    from pipeline.scenes.hm3dsem import hm3dsem_scene_id
 
     found = {hm3dsem_scene_id(path): path for path in sorted(source.root.rglob(f"*{SEMANTIC_TXT}"))}
     refs = _wanted_refs(found, source, "hm3dsem", f"*{SEMANTIC_TXT}", load_hm3dsem, (("up_axis", source.up_axis),))
     for ref in refs:
-        _refuse_basis_glb(Path(ref.path), trio_stem(Path(ref.path)))
+        _refuse_basis_glb(Path(ref.path))
     return refs
 
 
-def _refuse_basis_glb(semantic_txt: Path, stem: str) -> None:
+def _refuse_basis_glb(semantic_txt: Path) -> None:
     """A scene whose folder holds habitat's `<stem>.basis.glb` but not the plain `<stem>.glb`: refused while the
     job is listed, since no well-kept Python package decodes Basis Universal textures (KHR_texture_basisu)."""
+    from pipeline.scenes.hm3dsem import trio_stem
+
+    stem = trio_stem(semantic_txt)
     plain = semantic_txt.with_name(f"{stem}.glb")
     basis = semantic_txt.with_name(f"{stem}.basis.glb")
     if basis.is_file() and not plain.is_file():
