@@ -26,7 +26,7 @@ from typing import Any, Iterator
 import pyarrow as pa
 import yaml
 
-from pipeline.config import ConfigError, Job, job_from_resolved
+from pipeline.config import ConfigError, Job, job_from_resolved, load_yaml
 from pipeline.errors import error_text
 from pipeline.store.backends import LocalFiles, RunFiles, RunFolderError, StoreFiles
 from pipeline.store.datasets import CheckedStages, TrustedPart, damage_line
@@ -107,7 +107,7 @@ class RunFolder:
 
     def job(self) -> Job:
         try:
-            data = yaml.safe_load((self.root / JOB_FILE).read_text())
+            data = load_yaml((self.root / JOB_FILE).read_text())
             return job_from_resolved(data["job"])
         except yaml.YAMLError as error:
             raise ConfigError(f"{self.root / JOB_FILE}: not valid YAML ({' '.join(str(error).split())}); "
