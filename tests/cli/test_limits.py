@@ -189,8 +189,6 @@ def test_a_signal_at_any_moment_of_start_up_is_one_line(run, entry, sent, code, 
 
 
 def test_a_driver_that_lost_its_lease_exits_1_as_the_readme_says(tmp_path, monkeypatch):
-    readme = (REPO / "README.md").read_text()
-    assert "1 some unit failed or the command was stopped by its storage" in readme and "lost run lock lease" in readme
     job = tmp_path / "job.yaml"
     job.write_text(JOB)
     commit = RunFolder.commit_unit
@@ -207,3 +205,5 @@ def test_a_driver_that_lost_its_lease_exits_1_as_the_readme_says(tmp_path, monke
     assert "Traceback" not in result.output
     last = result.output.strip().splitlines()[-1]
     assert last.startswith("error: ") and "now held by pid 7 on elsewhere" in last, result.output
+    readme = (REPO / "README.md").read_text()
+    assert "1 some unit failed or the command was stopped by its storage" in readme and "lost run lock lease" in readme
