@@ -20,12 +20,18 @@ corners share (else its first corner's). Object id = objectId + 1 (vertices of n
 name = label, category = the TSV's mpcat40index for the raw name when the download holds the TSV, else
 (and for names the TSV lacks) our raw-name table. A segGroup naming a segment the segs file lacks, or a
 segs file whose length is not the mesh's vertex count, fails the scene with one line naming both.
+
+Repeats (schemas/scan_sources.md): objectIds must be 0 .. 2^32 - 2 and unique (a repeat fails naming
+both groups); a group repeating an earlier group's label and segments is dropped with one warning
+(scene0217_00); a segment in two groups fails (ScanNet v2) or goes to the smallest group (ScanNet++,
+whose annotations are multi-label), with one warning.
 """
 
 from __future__ import annotations
 
 import csv
 import logging
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -100,8 +106,8 @@ def _segment_list(segs_path: Path) -> np.ndarray:
     end = text.find("]", start)
     body = text[start:end]
     if key >= 0 and 0 < start < end and text.count("{", key) == 0 and _plain_integers(body):
-        values = np.fromstring(body, dtype=np.int64, sep=",") if body.strip() else np.zeros(0, np.int64)
-        if len(values) == (body.count(",") + 1 if body.strip() else 0):
+        values = _parsed_integers(body)
+        if values is not None and len(values) == (body.count(",") + 1 if body.strip() else 0):
             return values
     segs = read_json(segs_path, "a ScanNet scene needs its over-segmentation beside the mesh")
     values = segs.get("segIndices") if isinstance(segs, dict) else None
@@ -111,6 +117,18 @@ def _segment_list(segs_path: Path) -> np.ndarray:
     if bad is not None:
         integer_field(values[bad], f"{segs_path}:segIndices[{bad}]", INT64_MIN, INT64_MAX)
     return np.array(values, np.int64)
+
+
+def _parsed_integers(body: str) -> np.ndarray | None:
+    """numpy's parse of comma-separated integers, or None where it stops early (then json reads the file)."""
+    if not body.strip():
+        return np.zeros(0, np.int64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)  # numpy warns, then errs, on text it cannot finish
+        try:
+            return np.fromstring(body, dtype=np.int64, sep=",")
+        except (ValueError, DeprecationWarning):
+            return None
 
 
 def _plain_integers(body: str) -> bool:
