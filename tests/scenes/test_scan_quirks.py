@@ -16,7 +16,7 @@ from pipeline.config import Embodiment, Job, PlanConfig
 from pipeline.plan.poses import level_camera_rotations
 from pipeline.render.renderer import VideoRenderer
 from pipeline.runtime.executor import run_unit_locally
-from pipeline.scenes.categories import MISC, category_of
+from pipeline.scenes.categories import category_of
 from pipeline.scenes.hm3dsem import read_semantic_table
 from pipeline.scenes.matterport3d import read_house, read_matterport3d
 from pipeline.scenes.procedural.house import generate_house
@@ -31,6 +31,7 @@ from tests.scenes.scanfiles import (CLASSLESS_NAMES, classless_objects, object_i
                                     write_published_replica, write_scannet, write_scannetpp)
 
 BIG = 2**32 - 2  # the largest instance id whose object id (id + 1) is a uint32
+MISC = 40  # mpcat40's "misc"
 
 
 @pytest.fixture(scope="module")
