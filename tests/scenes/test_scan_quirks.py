@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import shutil
 from pathlib import Path
 
@@ -371,18 +372,30 @@ def test_malformed_segs_fail_in_one_line(scannet_scene: Path, tmp_path: Path, bo
     assert "\n" not in str(caught.value) and "segs.json" in str(caught.value)
 
 
-@pytest.mark.parametrize("text, message", [
-    ("ASCII 1.1\nC 0 1 chair 99999999999999999999 chair\nO 0 0 0\nE 0 0 7 1\n", r":2: C mpcat40_index: .* is outside 0\.\.41"),
-    ("ASCII 1.1\nC 0 1 chair 3 chair\nO 0 99999999999 0\nE 0 0 7 1\n", r":3: O region_index: 99999999999 is outside"),
-    ("ASCII 1.1\nC 0 1 chair 3 chair\nO 0 0 0\nE 0 0 7.5 1\n", r":4: cannot read the 'E' record's id"),
-    ("ASCII 1.1\nC 0\nO 0 0 0\nE 0 0 7 1\n", r":2: the 'C' record 'C 0' has no category_mapping_name"),
-    ("ASCII 1.1\nC 0 1 chair 3 chair\nO 0 0 0\nE 0 -7 7 1\n", r":4: E object_index: instance id -7 is outside 0\.\."),
+HOUSE, INFO = ("y.house", read_house), ("info_semantic.json", read_info)
+
+
+@pytest.mark.parametrize("file, text, message", [
+    (HOUSE, "ASCII 1.1\nC 0 1 chair 99999999999999999999 chair\nO 0 0 0\nE 0 0 7 1\n", r":2: C mpcat40_index: .* is outside 0\.\.41"),
+    (HOUSE, "ASCII 1.1\nC 0 1 chair 3 chair\nO 0 99999999999 0\nE 0 0 7 1\n", r":3: O region_index: 99999999999 is outside"),
+    (HOUSE, "ASCII 1.1\nC 0 1 chair 3 chair\nO 0 0 0\nE 0 0 7.5 1\n", r":4: cannot read the 'E' record's id"),
+    (HOUSE, "ASCII 1.1\nC 0\nO 0 0 0\nE 0 0 7 1\n", r":2: the 'C' record 'C 0' has no category_mapping_name"),
+    (HOUSE, "ASCII 1.1\nC 0 1 chair 3 chair\nO 0 0 0\nE 0 -7 7 1\n", r":4: E object_index: instance id -7 is outside 0\.\."),
+    (INFO, '{"classes": [{"id": 1, "name": "chair"}], "objects": [{"id": 1, "class_id": 10000000000000000000000}]}',
+     r":objects\[0\]\.class_id: 10000000000000000000000 is outside"),
+    (INFO, '{"classes": [{"id": 1, "name": 3}], "objects": []}', r":classes\[0\]: expected \{id, name\} with a string name"),
+    (INFO, '{"classes": [], "objects": [{"id": 1, "class_id": -1, "class_name": ["x"]}]}',
+     r":objects\[0\]\.class_name: expected a string"),
+    (INFO, '{"classes": [], "objects": [{"class_id": 2}]}', r":objects\[0\]\.id: None is not an integer"),
+    (INFO, '[]', r": expected classes \[\{id, name\}\] and objects"),
 ])
-def test_malformed_house_records_fail_in_one_line(tmp_path: Path, text: str, message: str) -> None:
-    path = tmp_path / "y.house"
+def test_malformed_house_and_replica_info_fail_in_one_line(tmp_path: Path, file: tuple, text: str, message: str) -> None:
+    name, read = file
+    path = tmp_path / name
     path.write_text(text, encoding="utf-8")
-    with pytest.raises(SceneError, match=r"y\.house" + message):
-        read_house(path)
+    with pytest.raises(SceneError, match=re.escape(name) + message) as caught:
+        read(path)
+    assert "\n" not in str(caught.value)
 
 
 def test_malformed_label_tables_fail_in_one_line(tmp_path: Path) -> None:
@@ -394,22 +407,6 @@ def test_malformed_label_tables_fail_in_one_line(tmp_path: Path) -> None:
     short.parent.mkdir()
     short.write_text("id\traw_category\tmpcat40index\n1\tchair\t3\n2\n3\tbed\t11\n", encoding="utf-8")
     assert read_labels_tsv(short) == {"chair": 3, "bed": 11}  # a row cut short maps nothing
-
-
-@pytest.mark.parametrize("text, message", [
-    ('{"classes": [{"id": 1, "name": "chair"}], "objects": [{"id": 1, "class_id": 10000000000000000000000}]}',
-     r"objects\[0\]\.class_id: 10000000000000000000000 is outside"),
-    ('{"classes": [{"id": 1, "name": 3}], "objects": []}', r"classes\[0\]: expected \{id, name\} with a string name"),
-    ('{"classes": [], "objects": [{"id": 1, "class_id": -1, "class_name": ["x"]}]}', r"objects\[0\]\.class_name: expected a string"),
-    ('{"classes": [], "objects": [{"class_id": 2}]}', r"objects\[0\]\.id: None is not an integer"),
-    ('[]', r"expected classes \[\{id, name\}\] and objects"),
-])
-def test_malformed_replica_info_fails_in_one_line(tmp_path: Path, text: str, message: str) -> None:
-    path = tmp_path / "info_semantic.json"
-    path.write_text(text, encoding="utf-8")
-    with pytest.raises(SceneError, match=r"info_semantic\.json:? ?" + message) as caught:
-        read_info(path)
-    assert "\n" not in str(caught.value)
 
 
 def test_a_replica_scene_whose_faces_carry_huge_ids_keeps_them_void(house: Scene, tmp_path: Path) -> None:
