@@ -21,6 +21,8 @@ name = label, category = the TSV's mpcat40index for the raw name when the downlo
 (and for names the TSV lacks) our raw-name table. A segGroup naming a segment the segs file lacks, or a
 segs file whose length is not the mesh's vertex count, fails the scene with one line naming both.
 
+An aggregation whose `segmentsFile` names another segs file (the hi-res `_vh_clean.aggregation.json`)
+fails; segment ids written as decimal strings are read, null ones skipped (as ScanNet's Aggregation.h).
 Repeats (schemas/scan_sources.md): objectIds must be 0 .. 2^32 - 2 and unique (a repeat fails naming
 both groups); a group repeating an earlier group's label and segments is dropped with one warning
 (scene0217_00); a segment in two groups fails (ScanNet v2) or goes to the smallest group (ScanNet++,
@@ -143,12 +145,21 @@ class SegGroup:
     segments: np.ndarray
 
 
-def read_groups(aggregation_path: Path) -> list[SegGroup]:
-    """The aggregation's segGroups, each checked: objectId an instance id, label a string, segments integers."""
+def read_groups(aggregation_path: Path, segs_name: str | None = None) -> list[SegGroup]:
+    """The aggregation's segGroups, each checked: objectId an instance id, label a string, segments integers.
+
+    With `segs_name`, an aggregation whose `segmentsFile` names another segs file fails: ScanNet's
+    `<scene>_vh_clean.aggregation.json` refers to the hi-res mesh's `_vh_clean.segs.json`, and its segment
+    ids would label the `_vh_clean_2` mesh wrongly (ScanNet's AnnotationTools/common/Aggregation.h writes
+    `segmentsFile` = sceneId + "_vh_clean_2.0.010000.segs.json" for the annotated mesh)."""
     document = read_json(aggregation_path, "a ScanNet scene needs its aggregation beside the mesh")
     groups = document.get("segGroups") if isinstance(document, dict) else None
     if not isinstance(groups, list):
         raise SceneError(f"{aggregation_path}: no segGroups list; re-download the scene's annotations")
+    named = document.get("segmentsFile")
+    if segs_name is not None and isinstance(named, str) and not named.endswith(segs_name):
+        raise SceneError(f"{aggregation_path}:segmentsFile: refers to {named[-80:]!r}, not {segs_name} beside the mesh; "
+                         "use the aggregation of this mesh (<scene>.aggregation.json for _vh_clean_2.ply)")
     return [_seg_group(aggregation_path, index, group) for index, group in enumerate(groups)]
 
 
@@ -164,10 +175,23 @@ def _seg_group(path: Path, index: int, group: object) -> SegGroup:
     if not isinstance(segments, list):
         raise SceneError(f"{where}.segments: expected a list of segment ids, got {type(segments).__name__}; "
                          "re-download the scene's annotations")
-    bad = next((k for k, v in enumerate(segments) if type(v) is not int or not INT64_MIN <= v <= INT64_MAX), None)
-    if bad is not None:
-        integer_field(segments[bad], f"{where}.segments[{bad}]", INT64_MIN, INT64_MAX)
-    return SegGroup(index, object_id, label, np.unique(np.array(segments, np.int64)))
+    return SegGroup(index, object_id, label, np.unique(np.array(_segment_ids(segments, where), np.int64)))
+
+
+def _segment_ids(segments: list, where: str) -> list[int]:
+    """A group's segment ids. As ScanNet's own reader (AnnotationTools/common/Aggregation.h, getUINT) does, a
+    decimal string is read as its number and null is skipped (it becomes a segment no vertex has); anything
+    else that is not an int64 fails naming the entry."""
+    if all(type(v) is int and INT64_MIN <= v <= INT64_MAX for v in segments):
+        return segments
+    ids = []
+    for k, value in enumerate(segments):
+        if value is None:
+            continue
+        if isinstance(value, str) and value.isascii() and value.isdigit():
+            value = int(value)
+        ids.append(integer_field(value, f"{where}.segments[{k}]", INT64_MIN, INT64_MAX))
+    return ids
 
 
 def distinct_groups(groups: list[SegGroup], path: Path) -> list[SegGroup]:
@@ -254,7 +278,8 @@ def read_scannet(mesh_path: Path, up_axis: str = "z", labels_tsv: str = "") -> S
     mesh = read_ply(mesh_path)
     segments = _vertex_segments(segs_path, len(mesh.vertex["x"]))
     overlap = "smallest" if mesh_path.name == SCANNETPP_MESH else "refuse"
-    per_vertex, names = vertex_objects(segments, read_groups(aggregation_path), segs_path, aggregation_path, overlap)
+    groups = read_groups(aggregation_path, None if mesh_path.name == SCANNETPP_MESH else segs_path.name)
+    per_vertex, names = vertex_objects(segments, groups, segs_path, aggregation_path, overlap)
     table = read_labels_tsv(Path(labels_tsv)) if labels_tsv else {}
     objects = {i: SceneObject(i, name, table.get(name.strip().lower()) or category_of(name)) for i, name in names.items()}
     face_ids = faces_from_vertex_labels(per_vertex, mesh.triangles)

@@ -325,6 +325,34 @@ def test_hm3dsem_rows_as_published(tmp_path: Path) -> None:
                                          0x123456: ('6" ruler', 2)}
 
 
+def test_segment_ids_as_strings_or_null_are_read_as_scannet_reads_them(house: Scene, scannet_scene: Path,
+                                                                       tmp_path: Path) -> None:
+    """ScanNet's Aggregation.h (getUINT) reads a segment id given as a decimal string, and null as no segment."""
+    mesh = _copy_scene(scannet_scene, tmp_path)
+    expected = read_scannet(mesh)
+
+    def edit(groups: list) -> None:
+        for group in groups:
+            group["segments"] = [str(s) for s in group["segments"]] + [None]
+    _edit_groups(mesh, edit)
+    scene = read_scannet(mesh)
+    assert np.array_equal(scene.face_object_ids, expected.face_object_ids) and scene.objects == expected.objects
+
+
+def test_the_hi_res_aggregation_is_not_paired_with_the_annotated_mesh(scannet_scene: Path, tmp_path: Path) -> None:
+    """`<scene>_vh_clean.aggregation.json` indexes the hi-res mesh's segments (ScanNet README; CurryYuan/
+    InstanceRefer pull request #9): its `segmentsFile` says so, and the reader refuses it beside _vh_clean_2."""
+    mesh = _copy_scene(scannet_scene, tmp_path)
+    aggregation = _edit_groups(mesh, lambda groups: None)
+    document = json.loads(aggregation.read_text(encoding="utf-8"))
+    document["segmentsFile"] = "scannet.scene0000_00_vh_clean.segs.json"
+    aggregation.unlink()
+    aggregation.with_name("scene0000_00_vh_clean.aggregation.json").write_text(json.dumps(document), encoding="utf-8")
+    with pytest.raises(SceneError, match=r"scene0000_00_vh_clean\.aggregation\.json:segmentsFile: refers to "
+                                         r"'scannet\.scene0000_00_vh_clean\.segs\.json', not scene0000_00_vh_clean_2\.0\.010000"):
+        read_scannet(mesh)
+
+
 # ------------------------------------------------------------------------------------------- one-line errors
 
 
