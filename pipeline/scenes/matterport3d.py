@@ -60,6 +60,9 @@ def read_house(path: Path) -> House:
         text = path.read_bytes().decode("utf-8", errors="replace")
     except OSError as error:
         raise SceneError(f"{path}: cannot read ({error.strerror}); re-download the scan's house_segmentations") from None
+    if text.split("\n", 1)[0].split() == ["ASCII", "1.0"]:  # Matterport's mp.cpp: 1.0 has no C, O, E records
+        raise SceneError(f"{path}:1: an ASCII 1.0 .house holds no objects (categories, objects and segments came "
+                         "with 1.1); use the scan's v1.1 house_segmentations")
     house = House({}, {}, {})
     lines: dict[str, dict[int, int]] = {"C": {}, "O": {}, "E": {}}  # record kind -> key -> line number
     references: list[tuple[int, str, int, int]] = []  # (line, kind, key, index it names): checked once all are read

@@ -409,6 +409,7 @@ HOUSE, INFO = ("y.house", read_house), ("info_semantic.json", read_info)
     (HOUSE, "ASCII 1.1\nC 0 1 chair 3 chair\nO 0 0 0\nE 0 0 7.5 1\n", r":4: cannot read the 'E' record's id"),
     (HOUSE, "ASCII 1.1\nC 0\nO 0 0 0\nE 0 0 7 1\n", r":2: the 'C' record 'C 0' has no category_mapping_name"),
     (HOUSE, "ASCII 1.1\nC 0 1 chair 3 chair\nO 0 0 0\nE 0 -7 7 1\n", r":4: E object_index: instance id -7 is outside 0\.\."),
+    (HOUSE, "ASCII 1.0\nH x - 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0\n", r":1: an ASCII 1\.0 \.house holds no objects"),
     (INFO, '{"classes": [{"id": 1, "name": "chair"}], "objects": [{"id": 1, "class_id": 10000000000000000000000}]}',
      r":objects\[0\]\.class_id: 10000000000000000000000 is outside"),
     (INFO, '{"classes": [{"id": 1, "name": 3}], "objects": []}', r":classes\[0\]: expected \{id, name\} with a string name"),
