@@ -52,7 +52,7 @@ def read_semantic_table(path: Path) -> dict[int, tuple[str, int]]:
     dropped. It keys objects by the row's first field (the last of two rows wins); we fail naming both
     lines when an instance id or a colour is listed twice, since either would merge two objects."""
     try:
-        lines = path.read_bytes().decode("utf-8").splitlines()
+        lines = path.read_bytes().decode("utf-8-sig").splitlines()
     except FileNotFoundError:
         raise SceneError(f"{path}: missing semantic table; put the scene's .semantic.txt beside its .glb") from None
     except UnicodeDecodeError as error:

@@ -57,7 +57,7 @@ def read_house(path: Path) -> House:
     (region_index * 1000000 + segment). Where habitat-sim keeps the last of two records with the same
     index (C, O) or segment id (E), we fail naming both lines."""
     try:
-        text = path.read_bytes().decode("utf-8", errors="replace")
+        text = path.read_bytes().decode("utf-8-sig", errors="replace")
     except OSError as error:
         raise SceneError(f"{path}: cannot read ({error.strerror}); re-download the scan's house_segmentations") from None
     if text.split("\n", 1)[0].split() == ["ASCII", "1.0"]:  # Matterport's mp.cpp: 1.0 has no C, O, E records

@@ -68,7 +68,7 @@ def scene_files(mesh: Path) -> tuple[str, Path, list[Path]]:
 def read_labels_tsv(path: Path) -> dict[str, int]:
     """raw_category -> mpcat40index from ScanNet's scannetv2-labels.combined.tsv (rows without an index skipped)."""
     try:
-        text = path.read_bytes().decode("utf-8")
+        text = path.read_bytes().decode("utf-8-sig")
         rows = list(csv.DictReader(text.splitlines(), delimiter="\t"))
     except (OSError, UnicodeDecodeError, csv.Error) as error:
         raise SceneError(f"{path}: cannot read the label table ({type(error).__name__}); re-download it or drop "

@@ -54,7 +54,7 @@ def read_json(path: Path, what: str) -> Any:
     if not path.is_file():
         raise SceneError(f"{path}: missing; {what}")
     try:
-        return json.loads(path.read_bytes().decode("utf-8"))
+        return json.loads(path.read_bytes().decode("utf-8-sig"))  # a byte-order mark (Windows tools) is not JSON
     except UnicodeDecodeError as error:
         raise SceneError(f"{path}: not UTF-8 text (byte {error.start}); re-download the file") from None
     except json.JSONDecodeError as error:

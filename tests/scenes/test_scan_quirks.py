@@ -353,6 +353,17 @@ def test_the_hi_res_aggregation_is_not_paired_with_the_annotated_mesh(scannet_sc
         read_scannet(mesh)
 
 
+def test_a_byte_order_mark_is_read_past(tmp_path: Path) -> None:
+    """Files saved by Windows tools start with a UTF-8 byte-order mark; habitat-sim finds its HM3D header
+    anywhere in the first line (SemanticScene.cpp, `header.find`). Without a header, the first row stays a row."""
+    table = tmp_path / "c.semantic.txt"
+    table.write_bytes(b'\xef\xbb\xbf1,FF0000,"floor",0\r\n2,00FF00,"chair",0\r\n')
+    assert read_semantic_table(table) == {0xFF0000: ("floor", 0), 0x00FF00: ("chair", 0)}
+    info = _replica_info(tmp_path, [{"id": 1, "class_id": 1}])
+    info.write_bytes(b"\xef\xbb\xbf" + info.read_bytes())
+    assert list(read_info(info)) == [2]
+
+
 # ------------------------------------------------------------------------------------------- one-line errors
 
 
