@@ -303,7 +303,8 @@ def _binary_ragged(element: PlyElement, data: np.ndarray, offset: int, order: st
     columns: dict[str, np.ndarray | PlyList] = {}
     for i, prop in enumerate(props):
         values = _native(out[starts[i]:starts[i + 1]].view(order + prop.type))
-        columns[prop.name] = _list_column(counts[lists.index(i)], values) if prop.count_type else values
+        # A scalar column is copied out: a view would keep the whole buffer (the lists' items too) alive.
+        columns[prop.name] = _list_column(counts[lists.index(i)], values) if prop.count_type else values.copy()
     element.data = columns
     return int(end)
 
@@ -375,7 +376,7 @@ def _ascii_numbers(data: bytes | mmap.mmap, offset: int, header_lines: int, path
         parts.append(numbers)
         if bad is not None:
             line = header_lines + data[offset:start].count(b"\n") + chunk[:bad.start()].count(b"\n") + 1
-            return np.concatenate(parts), f"{line}: {bad.group()[:20].decode('utf-8', 'backslashreplace')!r} is not a number"
+            return np.concatenate(parts), f"{line}: {repr(bad.group()[:20])[1:]} is not a number"
         start = stop
     return (np.concatenate(parts) if parts else np.zeros(0)), ""
 
@@ -590,6 +591,15 @@ def _fan_ragged(counts, values, triangles, polygon):  # noqa: ANN001, ANN202
         corner += size
 
 
+@numba.njit(nogil=True, cache=True)
+def _fan_size(counts):  # noqa: ANN001, ANN202
+    """The number of fan triangles of polygons with these corner counts."""
+    total = 0
+    for size in counts:
+        total += max(size - 2, 0)
+    return total
+
+
 def fan_triangles(polygons: np.ndarray | PlyList | list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """(F, 3) fan triangles (0, i, i + 1) of each polygon, polygon after polygon, and each one's polygon."""
     if isinstance(polygons, list):
@@ -601,8 +611,7 @@ def fan_triangles(polygons: np.ndarray | PlyList | list[np.ndarray]) -> tuple[np
             return polygons, np.arange(count, dtype=np.int64)
         per_polygon = max(corners - 2, 0)
         return _fan(polygons).reshape(-1, 3), np.repeat(np.arange(count, dtype=np.int64), per_polygon)
-    per_polygon = np.maximum(polygons.counts - 2, 0)
-    total = int(per_polygon.sum())
+    total = _fan_size(polygons.counts)
     triangles, polygon = np.empty((total, 3), np.int64), np.empty(total, np.int64)
     _fan_ragged(polygons.counts, polygons.values, triangles, polygon)
     return triangles, polygon
