@@ -275,6 +275,8 @@ def read_parts(path: Path) -> tuple[list[MeshPart], int]:
         raise SceneError(f"{path}: no such file; check the scene folder holds it")
     if path.suffix.lower() == ".ply":
         part, short_faces = _ply_part(path)
+        if not len(part.faces):
+            raise _empty_mesh(path)
         return [part], short_faces
     obj = _scan_obj_faces(path) if path.suffix.lower() == ".obj" else None
     scene = _load_trimesh(path, obj)
@@ -304,8 +306,12 @@ def read_parts(path: Path) -> tuple[list[MeshPart], int]:
         LOG.warning("%s: %d materials have another triangle count than their `f` lines give (e.g. %s); their `o` / `g` "
                     "names are ignored and their material names label them", path, len(ungrouped), ", ".join(map(repr, ungrouped[:3])))
     if not parts:
-        raise SceneError(f"{path}: the mesh is empty (0 triangles); check the file was exported with geometry")
+        raise _empty_mesh(path)
     return parts, (obj.short_faces if obj is not None else 0)
+
+
+def _empty_mesh(path: Path) -> SceneError:
+    return SceneError(f"{path}: the mesh is empty (0 triangles); check the file was exported with geometry")
 
 
 def _part_name(path: Path, geometry: object, node: str, obj: ObjFaces | None) -> str:
