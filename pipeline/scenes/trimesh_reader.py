@@ -31,6 +31,9 @@ LOG = logging.getLogger(__name__)
 MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
 LABEL_PROPERTIES = ("object_id", "instance", "label", "segment")
 GLB_MAGIC = b"glTF"
+# What trimesh's loaders raise on files they cannot read (each becomes one line naming the file).
+TRIMESH_ERRORS = (ValueError, KeyError, IndexError, TypeError, AttributeError, UnicodeDecodeError, OSError,
+                  NotImplementedError, struct.error, OverflowError, ZeroDivisionError)
 # Required glTF extensions that trimesh decodes or that change nothing this project reads.
 GLTF_EXTENSIONS = frozenset({"KHR_materials_unlit", "KHR_texture_transform", "KHR_materials_pbrSpecularGlossiness"})
 
@@ -83,14 +86,18 @@ def _load_trimesh(path: Path, obj: ObjFaces | None = None) -> trimesh.Scene:
     try:
         # One geometry per material keeps OBJ `usemtl` groups apart; process=False keeps vertex order.
         return trimesh.load_scene(str(path), process=False, resolver=resolver)
-    except (ValueError, KeyError, IndexError, TypeError, AttributeError, UnicodeDecodeError, OSError,
-            NotImplementedError, struct.error) as error:
+    except TRIMESH_ERRORS as error:
         where = _first_bad_obj_line(path) if path.suffix.lower() == ".obj" else None
         if where is not None:
-            raise SceneError(f"{path}:{where[0]}: cannot read {where[1]!r} line; fix the line") from None
+            raise SceneError(f"{path}:{where[0]}: {where[1]}; fix the line") from None
         if path.suffix.lower() == ".glb":
-            raise _corrupt_glb(path, f"{type(error).__name__}: {error}") from None
-        raise SceneError(f"{path}: trimesh cannot read the mesh ({type(error).__name__}: {error}); re-export the file") from None
+            raise _corrupt_glb(path, _one_line(error)) from None
+        raise SceneError(f"{path}: trimesh cannot read the mesh ({_one_line(error)}); re-export the file") from None
+
+
+def _one_line(error: BaseException) -> str:
+    """An exception of trimesh's as a short single line (its messages may span lines)."""
+    return f"{type(error).__name__}: {' '.join(str(error).split())[:120]}"
 
 
 def _stand_in_materials(path: Path, names: object) -> object:
@@ -150,16 +157,30 @@ def check_gltf(path: Path) -> None:
 
 
 def _first_bad_obj_line(path: Path) -> tuple[int, str] | None:
-    """(line number, keyword) of the first `v` / `vt` / `vn` line whose numbers do not parse."""
-    with path.open(encoding="utf-8", errors="replace") as handle:
+    """(line number, what is wrong) of the first `v` / `vt` / `vn` line whose numbers do not parse, or
+    `f` line with a corner that is no vertex: asked only once trimesh has failed, to say where."""
+    vertices = sum(1 for line in path.open("rb") if line.split()[:1] == [b"v"])
+    with path.open(encoding="utf-8", errors="backslashreplace") as handle:
         for number, line in enumerate(handle, start=1):
             fields = line.split()
             if fields and fields[0] in ("v", "vt", "vn"):
                 try:
                     [float(x) for x in fields[1:]]
                 except ValueError:
-                    return number, fields[0]
+                    return number, f"cannot read {fields[0]!r} line"
+            if fields and fields[0] == "f":
+                corner = next((c for c in fields[1:] if not _is_vertex_index(c.split("/")[0], vertices)), None)
+                if corner is not None:
+                    return number, f"face corner {corner[:30]!r} is not a vertex index (1..{vertices} or -{vertices}..-1)"
     return None
+
+
+def _is_vertex_index(text: str, vertices: int) -> bool:
+    try:
+        index = int(text)
+    except ValueError:
+        return False
+    return 1 <= abs(index) <= vertices
 
 
 def _image_rgb(image: object) -> np.ndarray | None:
