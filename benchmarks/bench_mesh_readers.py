@@ -10,6 +10,11 @@ Since the trimesh reader replaced the hand-written GLB parser, every mesh is rea
     - with `--compare-ref REF` (e.g. main), the hand-written `read_glb` of that git ref as the peer.
 Run:
     cd /work/main && .venv/bin/python benchmarks/bench_mesh_readers.py [--compare-ref main]
+
+`--real-size` (issue 30) measures the PLY reader on files of the sizes the datasets publish instead, each
+reader in a fresh subprocess per run so that its peak RSS is its own (benchmarks/ply_real_size.py says
+what and how; results: benchmarks/results/mesh_readers_real_size.json):
+    cd /work/main && .venv/bin/python benchmarks/bench_mesh_readers.py --real-size [--runs 3] [--folder DIR]
 """
 
 from __future__ import annotations
@@ -55,7 +60,15 @@ def main() -> None:
 
     parser = argparse.ArgumentParser()
     parser.add_argument("--compare-ref", default=None, help="git ref whose glb.read_glb is timed as the peer")
+    parser.add_argument("--real-size", action="store_true", help="PLY files of the datasets' sizes (issue 30)")
+    parser.add_argument("--runs", type=int, default=3, help="--real-size: fresh-process runs per reader and file")
+    parser.add_argument("--folder", default=None, help="--real-size: where the big files are written (kept)")
     options = parser.parse_args()
+    if options.real_size:
+        from benchmarks.ply_real_size import run_real_size
+
+        run_real_size(options.runs, Path(options.folder) if options.folder else None)
+        return
     with tempfile.TemporaryDirectory() as folder:
         text = write_hm3dsem(generate_house(seed=2, detail=1.0), folder)
         glb = text.with_name(text.name.replace(".semantic.txt", ".glb"))

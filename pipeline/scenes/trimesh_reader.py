@@ -169,18 +169,22 @@ def _first_bad_obj_line(path: Path) -> tuple[int, str] | None:
                 except ValueError:
                     return number, f"cannot read {fields[0]!r} line"
             if fields and fields[0] == "f":
-                corner = next((c for c in fields[1:] if not _is_vertex_index(c.split("/")[0], vertices)), None)
+                corner = next((c for c in fields[1:] if not _is_corner(c, vertices)), None)
                 if corner is not None:
-                    return number, f"face corner {corner[:30]!r} is not a vertex index (1..{vertices} or -{vertices}..-1)"
+                    return number, (f"face corner {corner[:30]!r} is not a vertex index (1..{vertices} or -{vertices}..-1) "
+                                    "with optional /texture/normal indices")
     return None
 
 
-def _is_vertex_index(text: str, vertices: int) -> bool:
+def _is_corner(text: str, vertices: int) -> bool:
+    """`v`, `v/vt`, `v//vn` or `v/vt/vn` with v a vertex of the file."""
+    parts = text.split("/")
     try:
-        index = int(text)
+        index = int(parts[0])
+        [int(p) for p in parts[1:] if p]
     except ValueError:
         return False
-    return 1 <= abs(index) <= vertices
+    return 1 <= abs(index) <= vertices and len(parts) <= 3
 
 
 def _image_rgb(image: object) -> np.ndarray | None:
@@ -273,12 +277,16 @@ def _scan_obj_faces(path: Path) -> ObjFaces:
     groups: dict[str, list[str]] = {}
     group, material, short, any_group, missing = "", "", 0, False, ""
     with path.open(encoding="utf-8", errors="replace") as handle:
-        for line in handle:
+        for number, line in enumerate(handle, start=1):
             head = line[:7]
             if head.startswith("mtllib") and not missing and not (path.parent / line[6:].strip()).is_file():
                 missing = line[6:].strip()
             if head.startswith(("f ", "f\t")):
-                corners = len(line.split()) - 1
+                fields = line.split()
+                if "0" in fields or " 0/" in line or "\t0/" in line:  # trimesh would take 0 as the last vertex
+                    raise SceneError(f"{path}:{number}: face corner 0 is no vertex (OBJ counts from 1, or back from -1); "
+                                     "fix the line")
+                corners = len(fields) - 1
                 if corners < 3:
                     short += 1
                 else:
