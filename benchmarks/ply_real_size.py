@@ -10,7 +10,7 @@ Files, generated here (never committed; written under --folder or a temporary fo
     scannet_vh_clean_2  ScanNet's vh_clean_2 layout: x y z red green blue alpha, triangles (~150 k vertices).
     scannet_size_ascii  the ScanNet-size grid in ASCII, quads and triangles mixed (the ragged ASCII path).
 Readers, each run in a fresh `python` process (so ru_maxrss is that reader's own peak), RUNS times, interleaved:
-    read_ply            pipeline/scenes/ply.py (this tree)
+    read_ply            pipeline/scenes/ply.py (this tree), in a process that has not read a PLY yet
     read_ply b5d67c7    the reader before issue 30 (row by row on mixed faces), loaded from git
     trimesh.load        `trimesh.load(path)` as a user calls it (process=True). trimesh 4 cannot read a binary
                         PLY whose lists vary in length ("PLY is unexpected length!"), so on mixed_134mb the peer
@@ -161,11 +161,10 @@ def measure(reader: str, path: Path, dataset: str) -> dict:
                 path = path.with_name(TRIANGULATED)
             read = lambda: trimesh.load(str(path))  # noqa: E731
         elif reader == "read_ply":
-            from pipeline.scenes.ply import read_ply, write_ply
+            from pipeline.scenes.ply import read_ply
 
-            tiny = write_ply(Path(folder) / "tiny.ply", {"x": np.zeros(4, np.float32), "y": np.zeros(4, np.float32),
-                                                         "z": np.zeros(4, np.float32)}, [[0, 1, 2], [0, 1, 2, 3]])
-            read_ply(tiny)  # numba's compiled walks loaded from its cache: a once-per-process cost, timed apart
+            # Not warmed: on mixed faces the time and peak include importing numba and loading the compiled
+            # walks from numba's cache (~0.4 s, once per process), as a fresh worker pays them.
             read = lambda: read_ply(path)  # noqa: E731
         elif reader == "shard":
             import pipeline.scenes.shard  # noqa: F401

@@ -33,7 +33,6 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from pipeline.scenes.scene import SceneError
@@ -49,8 +48,6 @@ ELEMENT_COUNT = re.compile(r"[0-9]{1,18}")  # a plain decimal count (no sign, no
 TOKEN = re.compile(rb"\S+")
 WHITESPACE = re.compile(rb"\s")
 ASCII_CHUNK = 1 << 23  # bytes of an ASCII body parsed per call: bounds the text held beside the numbers
-# Problems the compiled row walks report.
-WALK_OK, WALK_TRUNCATED, WALK_BAD_COUNT = 0, 1, 2
 
 
 @dataclass
@@ -293,13 +290,13 @@ def _binary_ragged(element: PlyElement, data: np.ndarray, offset: int, order: st
     signed = np.array([bool(p.count_type) and np.dtype(p.count_type).kind == "i" for p in props])
     lists = [i for i, p in enumerate(props) if p.count_type]
     counts = np.empty((len(lists), element.count), np.int64)
-    end, row, bad, problem = _walk_binary_counts(data, offset, element.count, sizes, items, signed, order == ">", counts)
+    end, row, bad, problem = _kernels().walk_binary_counts(data, offset, element.count, sizes, items, signed, order == ">", counts)
     _raise_walk_problem(problem, path, element, row, bad)
     lengths = [int(counts[lists.index(i)].sum()) * items[i] if i in lists else element.count * sizes[i]
                for i in range(len(props))]
     starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
     out = np.empty(int(starts[-1]), np.uint8)
-    _copy_binary_rows(data, offset, element.count, sizes, items, counts, starts, out)
+    _kernels().copy_binary_rows(data, offset, element.count, sizes, items, counts, starts, out)
     columns: dict[str, np.ndarray | PlyList] = {}
     for i, prop in enumerate(props):
         values = _native(out[starts[i]:starts[i + 1]].view(order + prop.type))
@@ -309,59 +306,21 @@ def _binary_ragged(element: PlyElement, data: np.ndarray, offset: int, order: st
     return int(end)
 
 
+def _kernels():  # noqa: ANN202 (the module)
+    """The compiled row walks, imported on the first file that needs them: numba costs ~170 MB of RSS and
+    ~0.4 s to load, which files whose rows all have one length (every dataset's) never pay."""
+    from pipeline.scenes import ply_kernels
+
+    return ply_kernels
+
+
 def _raise_walk_problem(problem: int, path: Path, element: PlyElement, row: int, bad: int) -> None:
-    if problem == WALK_TRUNCATED:
+    if problem == _kernels().WALK_TRUNCATED:
         raise SceneError(f"{_field(path, element, row)}: the file ends inside this row (a list count runs past the "
                          "end, or the body is cut short); the file is truncated or corrupt, re-download it")
-    if problem == WALK_BAD_COUNT:
+    if problem == _kernels().WALK_BAD_COUNT:
         raise SceneError(f"{_field(path, element, row, element.properties[bad])}: the list count is not a whole "
                          "number >= 0; the file is corrupt, re-export it")
-
-
-@numba.njit(nogil=True, cache=True)
-def _walk_binary_counts(data, offset, rows, sizes, items, signed, big_endian, counts):  # noqa: ANN001, ANN202
-    """Each list's item count per row into counts[list, row]; (end offset, row, property, problem)."""
-    cursor, end = offset, data.shape[0]
-    for row in range(rows):
-        slot = 0
-        for prop in range(sizes.shape[0]):
-            size = sizes[prop]
-            if cursor + size > end:
-                return cursor, row, prop, WALK_TRUNCATED
-            if items[prop] == 0:
-                cursor += size
-                continue
-            value = 0
-            for k in range(size):  # the count's bytes, most significant first
-                value = value * 256 + data[cursor + (k if big_endian else size - 1 - k)]
-            if signed[prop] and value >= 1 << (8 * size - 1):
-                return cursor, row, prop, WALK_BAD_COUNT  # a negative count
-            counts[slot, row] = value
-            slot += 1
-            cursor += size + value * items[prop]
-            if cursor > end:
-                return cursor, row, prop, WALK_TRUNCATED
-    return cursor, -1, -1, WALK_OK
-
-
-@numba.njit(nogil=True, cache=True)
-def _copy_binary_rows(data, offset, rows, sizes, items, counts, starts, out):  # noqa: ANN001, ANN202
-    """Each property's bytes of every row, in row order, into out[starts[property]:]."""
-    filled = starts[:-1].copy()
-    cursor = offset
-    for row in range(rows):
-        slot = 0
-        for prop in range(sizes.shape[0]):
-            length = sizes[prop]
-            if items[prop] != 0:
-                cursor += length
-                length = counts[slot, row] * items[prop]
-                slot += 1
-            target = filled[prop]
-            for k in range(length):
-                out[target + k] = data[cursor + k]
-            filled[prop] = target + length
-            cursor += length
 
 
 def _ascii_numbers(data: bytes | mmap.mmap, offset: int, header_lines: int, path: Path) -> tuple[np.ndarray, str]:
@@ -462,14 +421,14 @@ def _ascii_ragged(element: PlyElement, numbers: np.ndarray, start: int, stopped:
     is_list = np.array([p.count_type is not None for p in props])
     lists = [i for i, p in enumerate(props) if p.count_type]
     counts = np.empty((len(lists), element.count), np.int64)
-    end, row, bad, problem = _walk_ascii_counts(numbers, start, element.count, is_list, counts)
-    if problem == WALK_TRUNCATED:
+    end, row, bad, problem = _kernels().walk_ascii_counts(numbers, start, element.count, is_list, counts)
+    if problem == _kernels().WALK_TRUNCATED:
         raise _ascii_short(path, element, row, stopped)
     _raise_walk_problem(problem, path, element, row, bad)
     lengths = [int(counts[lists.index(i)].sum()) if i in lists else element.count for i in range(len(props))]
     starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
     out = np.empty(int(starts[-1]), np.float64)
-    _copy_ascii_rows(numbers, start, element.count, is_list, counts, starts, out)
+    _kernels().copy_ascii_rows(numbers, start, element.count, is_list, counts, starts, out)
     columns: dict[str, np.ndarray | PlyList] = {}
     for i, prop in enumerate(props):
         values = _ascii_cast(out[starts[i]:starts[i + 1]], path, element, prop)
@@ -496,49 +455,6 @@ def _ascii_cast(values: np.ndarray, path: Path, element: PlyElement, prop: PlyPr
             raise SceneError(f"{_field(path, element, None, prop)}: {value!r} is not a value of type {dtype.name} "
                              f"(whole numbers {info.min}..{info.max}); fix the file or its header type")
     return values.astype(dtype)
-
-
-@numba.njit(nogil=True, cache=True)
-def _walk_ascii_counts(numbers, start, rows, is_list, counts):  # noqa: ANN001, ANN202
-    """Each list's item count per row into counts[list, row]; (end index, row, property, problem)."""
-    cursor, end = start, numbers.shape[0]
-    for row in range(rows):
-        slot = 0
-        for prop in range(is_list.shape[0]):
-            if cursor >= end:
-                return cursor, row, prop, WALK_TRUNCATED
-            if not is_list[prop]:
-                cursor += 1
-                continue
-            value = numbers[cursor]
-            if not (value >= 0 and value == np.floor(value)):
-                return cursor, row, prop, WALK_BAD_COUNT
-            if value >= end - cursor:
-                return cursor, row, prop, WALK_TRUNCATED
-            counts[slot, row] = int(value)
-            slot += 1
-            cursor += 1 + int(value)
-    return cursor, -1, -1, WALK_OK
-
-
-@numba.njit(nogil=True, cache=True)
-def _copy_ascii_rows(numbers, start, rows, is_list, counts, starts, out):  # noqa: ANN001, ANN202
-    """Each property's numbers of every row, in row order, into out[starts[property]:]."""
-    filled = starts[:-1].copy()
-    cursor = start
-    for row in range(rows):
-        slot = 0
-        for prop in range(is_list.shape[0]):
-            length = 1
-            if is_list[prop]:
-                length = counts[slot, row]
-                slot += 1
-                cursor += 1
-            target = filled[prop]
-            for k in range(length):
-                out[target + k] = numbers[cursor + k]
-            filled[prop] = target + length
-            cursor += length
 
 
 def read_ply_elements(path: Path) -> tuple[list[PlyElement], list[str]]:
@@ -576,30 +492,6 @@ def _fan(corners: np.ndarray) -> np.ndarray:
     return triangles
 
 
-@numba.njit(nogil=True, cache=True)
-def _fan_ragged(counts, values, triangles, polygon):  # noqa: ANN001, ANN202
-    """Fans (0, i, i + 1) of polygons of any size, polygon after polygon, into triangles and polygon."""
-    corner, made = 0, 0
-    for index in range(counts.shape[0]):
-        size = counts[index]
-        for k in range(size - 2):
-            triangles[made, 0] = values[corner]
-            triangles[made, 1] = values[corner + k + 1]
-            triangles[made, 2] = values[corner + k + 2]
-            polygon[made] = index
-            made += 1
-        corner += size
-
-
-@numba.njit(nogil=True, cache=True)
-def _fan_size(counts):  # noqa: ANN001, ANN202
-    """The number of fan triangles of polygons with these corner counts."""
-    total = 0
-    for size in counts:
-        total += max(size - 2, 0)
-    return total
-
-
 def fan_triangles(polygons: np.ndarray | PlyList | list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """(F, 3) fan triangles (0, i, i + 1) of each polygon, polygon after polygon, and each one's polygon."""
     if isinstance(polygons, list):
@@ -611,9 +503,9 @@ def fan_triangles(polygons: np.ndarray | PlyList | list[np.ndarray]) -> tuple[np
             return polygons, np.arange(count, dtype=np.int64)
         per_polygon = max(corners - 2, 0)
         return _fan(polygons).reshape(-1, 3), np.repeat(np.arange(count, dtype=np.int64), per_polygon)
-    total = _fan_size(polygons.counts)
+    total = _kernels().fan_size(polygons.counts)
     triangles, polygon = np.empty((total, 3), np.int64), np.empty(total, np.int64)
-    _fan_ragged(polygons.counts, polygons.values, triangles, polygon)
+    _kernels().fan_ragged(polygons.counts, polygons.values, triangles, polygon)
     return triangles, polygon
 
 
