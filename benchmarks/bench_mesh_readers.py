@@ -28,6 +28,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from types import ModuleType
 from typing import Callable
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,17 +37,22 @@ sys.path.insert(0, str(ROOT))
 RUNS = 5
 
 
-def _reference_reader(ref: str, folder: Path) -> Callable[[Path], object]:
-    """`read_glb` of pipeline/scenes/glb.py as it is at git `ref` (loaded as a stand-alone module)."""
-    source = subprocess.run(["git", "show", f"{ref}:pipeline/scenes/glb.py"], cwd=ROOT, check=True,
-                            capture_output=True, text=True).stdout
-    path = folder / "reference_glb.py"
-    path.write_text(source, encoding="utf-8")
-    spec = importlib.util.spec_from_file_location("reference_glb", path)
+def module_at_ref(ref: str, source: str, folder: Path) -> ModuleType:
+    """The module `source` (e.g. pipeline/scenes/glb.py) as it is at git `ref`, loaded stand-alone from `folder`."""
+    text = subprocess.run(["git", "show", f"{ref}:{source}"], cwd=ROOT, check=True, capture_output=True, text=True).stdout
+    name = "reference_" + Path(source).stem
+    path = folder / f"{name}.py"
+    path.write_text(text, encoding="utf-8")
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    sys.modules["reference_glb"] = module  # dataclasses look their module up while the class is built
+    sys.modules[name] = module  # dataclasses look their module up while the class is built
     spec.loader.exec_module(module)  # type: ignore[union-attr]
-    return module.read_glb
+    return module
+
+
+def _reference_reader(ref: str, folder: Path) -> Callable[[Path], object]:
+    """`read_glb` of pipeline/scenes/glb.py as it is at git `ref`."""
+    return module_at_ref(ref, "pipeline/scenes/glb.py", folder).read_glb
 
 
 def main() -> None:

@@ -123,18 +123,10 @@ def _status_mb(field: str) -> float:
 
 
 def _old_reader(folder: Path):  # noqa: ANN202
-    """read_ply of pipeline/scenes/ply.py at OLD_REF, loaded as a stand-alone module."""
-    import importlib.util
+    """read_ply of pipeline/scenes/ply.py at OLD_REF."""
+    from benchmarks.bench_mesh_readers import module_at_ref
 
-    source = subprocess.run(["git", "show", f"{OLD_REF}:pipeline/scenes/ply.py"], cwd=ROOT, check=True,
-                            capture_output=True, text=True).stdout
-    path = folder / "old_ply.py"
-    path.write_text(source, encoding="utf-8")
-    spec = importlib.util.spec_from_file_location("old_ply", path)
-    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    sys.modules["old_ply"] = module
-    spec.loader.exec_module(module)  # type: ignore[union-attr]
-    return module.read_ply
+    return module_at_ref(OLD_REF, "pipeline/scenes/ply.py", folder).read_ply
 
 
 def _shard(path: Path, source: str) -> None:

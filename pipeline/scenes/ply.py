@@ -296,7 +296,7 @@ def _binary_ragged(element: PlyElement, data: np.ndarray, offset: int, order: st
                for i in range(len(props))]
     starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
     out = np.empty(int(starts[-1]), np.uint8)
-    _kernels().copy_binary_rows(data, offset, element.count, sizes, items, counts, starts, out)
+    _kernels().copy_rows(data, offset, element.count, sizes, items, counts, starts, out)
     columns: dict[str, np.ndarray | PlyList] = {}
     for i, prop in enumerate(props):
         values = _native(out[starts[i]:starts[i + 1]].view(order + prop.type))
@@ -428,7 +428,8 @@ def _ascii_ragged(element: PlyElement, numbers: np.ndarray, start: int, stopped:
     lengths = [int(counts[lists.index(i)].sum()) if i in lists else element.count for i in range(len(props))]
     starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
     out = np.empty(int(starts[-1]), np.float64)
-    _kernels().copy_ascii_rows(numbers, start, element.count, is_list, counts, starts, out)
+    ones = np.ones(len(props), np.int64)  # every scalar and list count is one number; every item too
+    _kernels().copy_rows(numbers, start, element.count, ones, is_list.astype(np.int64), counts, starts, out)
     columns: dict[str, np.ndarray | PlyList] = {}
     for i, prop in enumerate(props):
         values = _ascii_cast(out[starts[i]:starts[i + 1]], path, element, prop)

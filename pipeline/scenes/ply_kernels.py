@@ -40,8 +40,9 @@ def walk_binary_counts(data, offset, rows, sizes, items, signed, big_endian, cou
 
 
 @numba.njit(nogil=True, cache=True)
-def copy_binary_rows(data, offset, rows, sizes, items, counts, starts, out):  # noqa: ANN001, ANN202
-    """Each property's bytes of every row, in row order, into out[starts[property]:]."""
+def copy_rows(data, offset, rows, sizes, items, counts, starts, out):  # noqa: ANN001, ANN202
+    """Each property's bytes (or ASCII numbers) of every row, in row order, into out[starts[property]:].
+    A scalar spans sizes[p] units; a list, its count's sizes[p] units then counts * items[p] units."""
     filled = starts[:-1].copy()
     cursor = offset
     for row in range(rows):
@@ -80,26 +81,6 @@ def walk_ascii_counts(numbers, start, rows, is_list, counts):  # noqa: ANN001, A
             slot += 1
             cursor += 1 + int(value)
     return cursor, -1, -1, WALK_OK
-
-
-@numba.njit(nogil=True, cache=True)
-def copy_ascii_rows(numbers, start, rows, is_list, counts, starts, out):  # noqa: ANN001, ANN202
-    """Each property's numbers of every row, in row order, into out[starts[property]:]."""
-    filled = starts[:-1].copy()
-    cursor = start
-    for row in range(rows):
-        slot = 0
-        for prop in range(is_list.shape[0]):
-            length = 1
-            if is_list[prop]:
-                length = counts[slot, row]
-                slot += 1
-                cursor += 1
-            target = filled[prop]
-            for k in range(length):
-                out[target + k] = numbers[cursor + k]
-            filled[prop] = target + length
-            cursor += length
 
 
 @numba.njit(nogil=True, cache=True)
