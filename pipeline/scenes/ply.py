@@ -19,7 +19,7 @@ Memory: the file is memory-mapped, never copied whole. Rows whose lists all have
 length (every dataset above) are one `np.frombuffer` / one reshape; rows of varying length (meshes
 exported with n-gons mix triangles and quads) are walked twice by a compiled loop (ply_kernels.py:
 counts, then one copy of each property's bytes into a flat column), never one Python object per row:
-the reader holds the mapped file, the counts (8 bytes a row) and the columns it returns (a 134 MB
+the reader holds the mapped file, the counts (4 bytes a row) and the columns it returns (a 134 MB
 mixed-face file: ~330 MB above the interpreter, where the row-by-row reader took 1.3 GB;
 benchmarks/results/mesh_readers_real_size.json). An ASCII body is parsed a few
 MB at a time into float64 numbers. Every count in the header is checked against what the body can
@@ -291,7 +291,7 @@ def _binary_ragged(element: PlyElement, data: np.ndarray, offset: int, order: st
     items = np.array([np.dtype(p.type).itemsize if p.count_type else 0 for p in props], np.int64)
     signed = np.array([bool(p.count_type) and np.dtype(p.count_type).kind == "i" for p in props])
     lists = [i for i, p in enumerate(props) if p.count_type]
-    counts = np.empty((len(lists), element.count), np.int64)
+    counts = np.empty((len(lists), element.count), np.uint32)  # a count is at most a uint: 4 bytes a row, not 8
     end, row, bad, problem = _kernels().walk_binary_counts(data, offset, element.count, sizes, items, signed, order == ">", counts)
     _raise_walk_problem(problem, path, element, row, bad)
     lengths = [int(counts[lists.index(i)].sum()) * items[i] if i in lists else element.count * sizes[i]
