@@ -20,7 +20,7 @@ length (every dataset above) are one `np.frombuffer` / one reshape; rows of vary
 exported with n-gons mix triangles and quads) are walked twice by a compiled loop (ply_kernels.py:
 counts, then one copy of each property's bytes into a flat column), never one Python object per row:
 the reader holds the mapped file, the counts (4 bytes a row) and the columns it returns (a 134 MB
-mixed-face file: ~330 MB above the interpreter, where the row-by-row reader took 1.3 GB;
+mixed-face file: 0.52 GB peak RSS, numba included, where the row-by-row reader took 1.35 GB;
 benchmarks/results/mesh_readers_real_size.json). An ASCII body is parsed a few
 MB at a time into float64 numbers. Every count in the header is checked against what the body can
 hold before anything is allocated. Every fault is a SceneError of one line,
