@@ -1,0 +1,130 @@
+"""The columns of a Hugging Face export: `datasets` feature types and one block of frames as Arrow columns.
+
+One row per frame. Pixels are stored losslessly, so decoding gives the run's arrays bit for bit:
+`rgb` (PNG, uint8 RGB) and `depth` (16-bit grayscale PNG, uint16 mm) decode as `datasets.Image`
+(PIL images; `np.asarray` gives the arrays), `panoptic` is `Array2D(uint32)` (Parquet dictionary
+encoding plus zstd keeps its few ids per frame small). Field by field: schemas/hf_dataset.md.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pyarrow as pa
+from PIL import Image as PilImage
+
+if TYPE_CHECKING:
+    import datasets
+
+# zlib level of the PNGs: level 3 encodes a 640x480 frame about twice as fast as Pillow's default 6 for
+# files ~30 % larger (benchmarks/results/hf_export.json); decoding speed hardly depends on it.
+PNG_LEVEL = 3
+
+
+def dataset_features(height: int, width: int) -> "datasets.Features":
+    """The export's `datasets.Features` for frames of `height` x `width` pixels."""
+    from datasets import Array2D, Features, Image, List, Value
+
+    return Features({
+        "video_name": Value("string"),
+        "frame": Value("int32"),
+        "embodiment": Value("string"),
+        "scene_id": Value("string"),
+        "camera_height_m": Value("float64"),
+        "illumination": Value("string"),
+        "rgb": Image(),
+        "depth": Image(),
+        "panoptic": Array2D((height, width), "uint32"),
+        "pose": Array2D((4, 4), "float64"),
+        "intrinsics": {"fx": Value("float64"), "fy": Value("float64"), "cx": Value("float64"),
+                       "cy": Value("float64"), "width": Value("int32"), "height": Value("int32")},
+        "object_ids": List(Value("uint32")),
+        "object_categories": List(Value("int32")),
+        "zero_shot_object_ids": List(Value("uint32")),
+        "empty": Value("bool"),
+        "zero_shot_rejected": Value("bool"),
+        "accepted": Value("bool"),
+    })
+
+
+def storage_schema(features: "datasets.Features") -> pa.Schema:
+    """The Parquet schema: `features.arrow_schema` with each `datasets` extension type replaced by its storage
+    (nested lists), so any Parquet reader reads the files; the `huggingface` schema metadata keeps the
+    feature types for `datasets` (which also takes them from the card)."""
+    schema = features.arrow_schema
+    fields = [pa.field(f.name, f.type.storage_type if isinstance(f.type, pa.ExtensionType) else f.type)
+              for f in schema]
+    return pa.schema(fields, metadata=schema.metadata)
+
+
+@dataclass(frozen=True)
+class VideoFacts:
+    """What every row of one video repeats: keys, camera, objects and the split stage's flags."""
+
+    video_name: str
+    embodiment: str
+    scene_id: str
+    camera_height_m: float
+    illumination: str
+    intrinsics: dict[str, float]
+    object_ids: list[int]
+    object_categories: list[int]
+    zero_shot_object_ids: list[int]
+    empty: bool | None
+    zero_shot_rejected: bool | None
+    accepted: bool | None
+
+
+def png_bytes(pixels: np.ndarray) -> bytes:
+    """One image as PNG: (H, W, 3) uint8 as RGB, (H, W) uint16 as 16-bit grayscale (Pillow mode I;16)."""
+    buffer = io.BytesIO()
+    PilImage.fromarray(pixels).save(buffer, format="PNG", compress_level=PNG_LEVEL)
+    return buffer.getvalue()
+
+
+def frame_block(schema: pa.Schema, facts: VideoFacts, first_frame: int, rgb: np.ndarray, depth: np.ndarray,
+                panoptic: np.ndarray, poses: np.ndarray) -> pa.RecordBatch:
+    """Rows for frames first_frame, first_frame + 1, ... of one video (arrays with a leading time axis)."""
+    count = int(panoptic.shape[0])
+    repeat = lambda value: [value] * count  # noqa: E731
+    intrinsics = {key: repeat(facts.intrinsics[key]) for key in ("fx", "fy", "cx", "cy")}
+    intrinsics.update(width=repeat(int(facts.intrinsics["width"])), height=repeat(int(facts.intrinsics["height"])))
+    columns: dict[str, Any] = {
+        "video_name": repeat(facts.video_name),
+        "frame": np.arange(first_frame, first_frame + count, dtype=np.int32),
+        "embodiment": repeat(facts.embodiment),
+        "scene_id": repeat(facts.scene_id),
+        "camera_height_m": repeat(facts.camera_height_m),
+        "illumination": repeat(facts.illumination),
+        "rgb": _images([png_bytes(image) for image in rgb]),
+        "depth": _images([png_bytes(image) for image in depth]),
+        "panoptic": _nested_lists(np.ascontiguousarray(panoptic, dtype=np.uint32)),
+        "pose": _nested_lists(np.ascontiguousarray(poses, dtype=np.float64)),
+        "intrinsics": [dict(zip(intrinsics, values)) for values in zip(*intrinsics.values())],
+        "object_ids": repeat(facts.object_ids),
+        "object_categories": repeat(facts.object_categories),
+        "zero_shot_object_ids": repeat(facts.zero_shot_object_ids),
+        "empty": repeat(facts.empty),
+        "zero_shot_rejected": repeat(facts.zero_shot_rejected),
+        "accepted": repeat(facts.accepted),
+    }
+    arrays = [column if isinstance(column, pa.Array) else pa.array(column, type=field.type)
+              for field, column in zip(schema, (columns[field.name] for field in schema))]
+    return pa.RecordBatch.from_arrays(arrays, schema=schema)
+
+
+def _images(encoded: list[bytes]) -> pa.StructArray:
+    """`datasets.Image` storage: struct<bytes, path> with the file bytes and no path."""
+    return pa.StructArray.from_arrays([pa.array(encoded, pa.binary()), pa.nulls(len(encoded), pa.string())],
+                                      names=["bytes", "path"])
+
+
+def _nested_lists(values: np.ndarray) -> pa.ListArray:
+    """(N, H, W) array -> N rows of list<list<value>> (`Array2D` storage), without going through Python lists."""
+    count, rows, columns = values.shape
+    inner = pa.ListArray.from_arrays(pa.array(np.arange(0, count * rows * columns + 1, columns, dtype=np.int32)),
+                                     pa.array(values.reshape(-1)))
+    return pa.ListArray.from_arrays(pa.array(np.arange(0, count * rows + 1, rows, dtype=np.int32)), inner)
