@@ -25,7 +25,7 @@ import yaml
 
 from pipeline.io.huggingface.card import (DATA, JOB_COPY, LICENCE_FILE, CardFacts, SplitFacts, card_text,
                                           licence_notice)
-from pipeline.io.huggingface.features import VideoFacts, dataset_features, frame_block, storage_schema
+from pipeline.io.huggingface.features import VideoFacts, dataset_features, frame_block, parquet_schema
 from pipeline.io.huggingface.shards import ROWS_PER_GROUP, SHARD_BYTES, ShardWriter
 from pipeline.io.mvpd.export import READ_BLOCK, swap_into_place
 from pipeline.io.reader import LoadedVideo, load_video
@@ -94,7 +94,7 @@ def export_hf_dataset(run: RunFolder, out: Path, split: str | None = None, embod
     height, width = _frame_size(run, splits, videos_table)
     out = checked_target(Path(out), overwrite)
     features = dataset_features(height, width)
-    schema = storage_schema(features)
+    schema = parquet_schema(features)
     unseen = _unseen_objects(run)
     if on_start is not None:
         on_start(sum(len(videos) for videos in splits.values()))

@@ -50,14 +50,11 @@ def dataset_features(height: int, width: int) -> "datasets.Features":
     })
 
 
-def storage_schema(features: "datasets.Features") -> pa.Schema:
-    """The Parquet schema: `features.arrow_schema` with each `datasets` extension type replaced by its storage
-    (nested lists), so any Parquet reader reads the files; the `huggingface` schema metadata keeps the
-    feature types for `datasets` (which also takes them from the card)."""
-    schema = features.arrow_schema
-    fields = [pa.field(f.name, f.type.storage_type if isinstance(f.type, pa.ExtensionType) else f.type)
-              for f in schema]
-    return pa.schema(fields, metadata=schema.metadata)
+def parquet_schema(features: "datasets.Features") -> pa.Schema:
+    """The shards' schema: `datasets`' own (`Array2D` as its Arrow extension type, the features in the
+    `huggingface` schema metadata), so `datasets` decodes the shards even without the card; other Parquet
+    readers (DuckDB, pyarrow alone) see the extension's storage, nested lists."""
+    return features.arrow_schema
 
 
 @dataclass(frozen=True)
@@ -111,9 +108,14 @@ def frame_block(schema: pa.Schema, facts: VideoFacts, first_frame: int, rgb: np.
         "zero_shot_rejected": repeat(facts.zero_shot_rejected),
         "accepted": repeat(facts.accepted),
     }
-    arrays = [column if isinstance(column, pa.Array) else pa.array(column, type=field.type)
-              for field, column in zip(schema, (columns[field.name] for field in schema))]
+    arrays = [_column(columns[field.name], field.type) for field in schema]
     return pa.RecordBatch.from_arrays(arrays, schema=schema)
+
+
+def _column(values: Any, kind: pa.DataType) -> pa.Array:
+    if isinstance(kind, pa.ExtensionType):  # Array2D: nested lists wrapped in `datasets`' extension type
+        return pa.ExtensionArray.from_storage(kind, values)
+    return values if isinstance(values, pa.Array) else pa.array(values, type=kind)
 
 
 def _images(encoded: list[bytes]) -> pa.StructArray:

@@ -42,7 +42,7 @@ class ShardWriter:
     Args:
         folder: where the shards go (the staging copy of `data/`).
         split: split name (the shard files' prefix).
-        schema: the Parquet schema (features.storage_schema).
+        schema: the Parquet schema (features.parquet_schema).
         rows_per_group, shard_bytes: the fixed row group size and the shard size bound.
     """
 
