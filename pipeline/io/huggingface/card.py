@@ -142,12 +142,14 @@ from datasets import load_dataset
 
 ds = load_dataset("path/to/this/folder", split="train").with_format("numpy")   # or streaming=True
 row = ds[0]
-rgb, depth, panoptic = row["rgb"], row["depth"], row["panoptic"]   # (H, W, 3) uint8, (H, W) uint16 mm, (H, W) uint32
+rgb, depth, panoptic = row["rgb"], row["depth"], row["panoptic"]   # (H, W, 3) uint8, (H, W) uint16 mm, (H, W) ids
 training = ds.filter(lambda accepted: accepted, input_columns="accepted")         # MVPd's loader's videos
 ```
 
 Without `.with_format("numpy")`, `rgb` and `depth` decode as PIL images (`np.asarray` gives the arrays;
-depth is mode `I;16`) and `panoptic` as nested lists (slow: use the numpy format).
+depth is mode `I;16`) and `panoptic` and `pose` as nested lists (exact, but slow for pixels). The numpy
+format widens integers to int64 (the ids are unchanged) and narrows floats to float32: read `pose` without
+it for float64, and `ds.with_format("arrow")["panoptic"]` for the stored uint32.
 
 ## Columns
 
