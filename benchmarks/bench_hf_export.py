@@ -10,11 +10,12 @@ load from other processes falls on all alike; medians and spreads go to benchmar
 
 - export: seconds, frames/s and bytes per frame of each format (one process each: under 2,000 frames the
   MVPd export does not start worker processes).
-- peak memory: resident set growth of the --hf export of the test split alone and of every split (flat in
-  the number of videos: one video, one row group at a time).
+- memory: resident set growth of the --hf export at its peak and after its first and its last video (flat
+  in the number of videos: one video, one row group at a time).
 - read: frames/s of one pass over every row, one process: `datasets` plain (the Arrow cache made by the
   first `load_dataset`, timed apart as `prepare`) and streaming (straight from the Parquet shards), both
-  `.with_format("numpy")` reading rgb, depth and panoptic; `iter_clips(clip_len=8)` over the same videos.
+  `.with_format("numpy")` reading rgb, depth and panoptic, row by row and in batches of 8 rows;
+  `iter_clips(clip_len=8)` over the same videos.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ from pipeline.store.run_folder import RunFolder  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 EMBODIMENT = "ambient"
 PIXELS = ("rgb", "depth", "panoptic")
+BATCH = 8  # rows per batch of the batched reads: the clip length iter_clips is read with
 
 
 def demo_run(folder: Path) -> Path:
@@ -108,14 +110,16 @@ def measure(run: RunFolder, scratch: Path, repeats: int) -> dict[str, Any]:
     sizes = {"hf": folder_bytes(hf), "mvpd": folder_bytes(mvpd),
              "mvpd_without_lit_rgb": folder_bytes(mvpd, skip="imagesRGB.0000000020")}
 
-    memory: dict[str, list[float]] = {"test_split": [], "all_splits": []}
-    for _ in range(repeats):
-        for label, split in (("test_split", "test"), ("all_splits", None)):
-            target = scratch / f"hf-{label}"
-            before = psutil.Process().memory_info().rss
-            with PeakRss() as peak:
-                export_hf_dataset(run, target, split=split, embodiment=EMBODIMENT, overwrite=True)
-            memory[label].append((peak.peak - before) / 2**20)
+    memory: dict[str, list[float]] = {"peak_growth": [], "after_first_video": [], "after_last_video": []}
+    for _ in range(repeats):  # resident set after each video: flat in the number of videos written
+        before = psutil.Process().memory_info().rss
+        after_video: list[int] = []
+        with PeakRss() as peak:
+            export_hf_dataset(run, scratch / "hf-memory", embodiment=EMBODIMENT, overwrite=True,
+                              on_video=lambda name: after_video.append(psutil.Process().memory_info().rss))
+        for label, value in (("peak_growth", peak.peak), ("after_first_video", after_video[0]),
+                             ("after_last_video", after_video[-1])):
+            memory[label].append((value - before) / 2**20)
 
     def prepare() -> int:
         shutil.rmtree(scratch / "cache", ignore_errors=True)
@@ -129,11 +133,23 @@ def measure(run: RunFolder, scratch: Path, repeats: int) -> dict[str, Any]:
         loaded = datasets.load_dataset(str(hf), streaming=True, cache_dir=str(scratch / "cache"))
         return sum(_touch(row) for split in loaded.values() for row in split.with_format("numpy"))
 
+    def read_plain_batched() -> int:
+        loaded = datasets.load_dataset(str(hf), cache_dir=str(scratch / "cache"))
+        return sum(_touch_batch(batch) for split in loaded.values()
+                   for batch in split.with_format("numpy").iter(batch_size=BATCH))
+
+    def read_streaming_batched() -> int:
+        loaded = datasets.load_dataset(str(hf), streaming=True, cache_dir=str(scratch / "cache"))
+        return sum(_touch_batch(batch) for split in loaded.values()
+                   for batch in split.with_format("numpy").iter(batch_size=BATCH))
+
     def read_iter_clips() -> int:
         return sum(clip["panoptic"].shape[0] for clip in iter_clips(run, 8, videos=videos, arrays=PIXELS))
 
-    reads: dict[str, Callable[[], int]] = {"prepare": prepare, "datasets_plain": read_plain,
-                                           "datasets_streaming": read_streaming, "iter_clips": read_iter_clips}
+    reads: dict[str, Callable[[], int]] = {
+        "prepare": prepare, "datasets_plain": read_plain, "datasets_streaming": read_streaming,
+        "datasets_plain_batch8": read_plain_batched, "datasets_streaming_batch8": read_streaming_batched,
+        "iter_clips": read_iter_clips}
     rates: dict[str, list[float]] = {label: [] for label in reads}
     counted: dict[str, int] = {}
     for _ in range(repeats):
@@ -147,7 +163,7 @@ def measure(run: RunFolder, scratch: Path, repeats: int) -> dict[str, Any]:
         "export_seconds": {label: summary(values) for label, values in seconds.items()},
         "export_fps": {label: summary([frames / s for s in values]) for label, values in seconds.items()},
         "bytes": sizes, "bytes_per_frame": {label: size / frames for label, size in sizes.items()},
-        "export_peak_rss_growth_mib": {label: summary(values) for label, values in memory.items()},
+        "export_rss_growth_mib": {label: summary(values) for label, values in memory.items()},
         "read_fps": {label: summary(values) for label, values in rates.items()},
         "read_frames": counted,
     }
@@ -156,6 +172,11 @@ def measure(run: RunFolder, scratch: Path, repeats: int) -> dict[str, Any]:
 def _touch(row: dict[str, Any]) -> int:
     """Use every pixel column of a decoded row (so lazy decoding cannot skip work); counts one frame."""
     return int(all(row[name].size > 0 for name in PIXELS))
+
+
+def _touch_batch(batch: dict[str, Any]) -> int:
+    """Use every pixel column of a decoded batch; counts its frames."""
+    return int(min(len(batch[name]) for name in PIXELS)) if all(batch[name].size > 0 for name in PIXELS) else 0
 
 
 def _resolution(run: RunFolder) -> tuple[int, int]:
@@ -171,8 +192,8 @@ def report(record: dict[str, Any]) -> None:
         print(f"export --{label:5s} {s['median']:6.2f} s (min {s['min']:.2f}, max {s['max']:.2f}), "
               f"{f['median']:6.1f} frames/s, {record['bytes_per_frame'][label] / 1024:7.1f} kB/frame")
     print(f"  --mvpd without the lit copy's JPEGs: {record['bytes_per_frame']['mvpd_without_lit_rgb'] / 1024:.1f} kB/frame")
-    for label, values in record["export_peak_rss_growth_mib"].items():
-        print(f"export --hf peak RSS growth, {label}: {values['median']:.0f} MiB (min {values['min']:.0f}, "
+    for label, values in record["export_rss_growth_mib"].items():
+        print(f"export --hf RSS growth, {label}: {values['median']:.0f} MiB (min {values['min']:.0f}, "
               f"max {values['max']:.0f})")
     for label, values in record["read_fps"].items():
         print(f"read {label:20s} {values['median']:7.1f} frames/s (min {values['min']:.1f}, max {values['max']:.1f})")

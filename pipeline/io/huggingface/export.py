@@ -17,6 +17,7 @@ import os
 import shutil
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,7 +26,7 @@ import yaml
 
 from pipeline.io.huggingface.card import (DATA, JOB_COPY, LICENCE_FILE, CardFacts, SplitFacts, card_text,
                                           licence_notice)
-from pipeline.io.huggingface.features import VideoFacts, dataset_features, frame_block, parquet_schema
+from pipeline.io.huggingface.features import VideoFacts, dataset_features, frame_block, parquet_schema, png_bytes
 from pipeline.io.huggingface.shards import ROWS_PER_GROUP, SHARD_BYTES, ShardWriter
 from pipeline.io.mvpd.export import READ_BLOCK, swap_into_place
 from pipeline.io.reader import LoadedVideo, load_video
@@ -223,6 +224,10 @@ def _write_split(run: RunFolder, folder: Path, split: str, videos: list[Exported
                  rows_per_group: int, shard_bytes: int, on_video: Callable[[str], None] | None) -> SplitFacts:
     """Every frame of the split's videos, one video and one block of frames at a time, into its shards."""
     writer = ShardWriter(folder, split, schema, rows_per_group, shard_bytes)
+    # PNG encoding is the export's main cost and Pillow releases the GIL while it compresses: one thread per
+    # core encodes a block's images (in order, so the bytes do not depend on the threads).
+    pool = ThreadPoolExecutor(len(os.sched_getaffinity(0)))
+    encode = lambda images: list(pool.map(png_bytes, images))  # noqa: E731
     try:
         for entry in videos:
             video = load_video(run, entry.video_name, entry.embodiment)
@@ -231,12 +236,13 @@ def _write_split(run: RunFolder, folder: Path, split: str, videos: list[Exported
             for start in range(0, video.frames, READ_BLOCK):
                 stop = min(start + READ_BLOCK, video.frames)
                 writer.add(frame_block(schema, facts, start, video.rgb[start:stop], video.depth[start:stop],
-                                       video.panoptic[start:stop], poses[start:stop]))
+                                       video.panoptic[start:stop], poses[start:stop], encode))
             if on_video is not None:
                 on_video(entry.video_name)
         shards = writer.finish()
     finally:
         writer.close()
+        pool.shutdown(cancel_futures=True)
     accepted = None if videos[0].accepted is None else sum(bool(v.accepted) for v in videos)
     return SplitFacts(len(videos), accepted, shards.rows, shards)
 

@@ -9,6 +9,7 @@ encoding plus zstd keeps its few ids per frame small). Field by field: schemas/h
 from __future__ import annotations
 
 import io
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -83,9 +84,12 @@ def png_bytes(pixels: np.ndarray) -> bytes:
 
 
 def frame_block(schema: pa.Schema, facts: VideoFacts, first_frame: int, rgb: np.ndarray, depth: np.ndarray,
-                panoptic: np.ndarray, poses: np.ndarray) -> pa.RecordBatch:
-    """Rows for frames first_frame, first_frame + 1, ... of one video (arrays with a leading time axis)."""
+                panoptic: np.ndarray, poses: np.ndarray,
+                encode: Callable[[list[np.ndarray]], list[bytes]] | None = None) -> pa.RecordBatch:
+    """Rows for frames first_frame, first_frame + 1, ... of one video (arrays with a leading time axis).
+    `encode` turns images into PNG bytes in order (default: one after the other, `png_bytes`)."""
     count = int(panoptic.shape[0])
+    encoded = (encode or _encode_serially)([*rgb, *depth])
     repeat = lambda value: [value] * count  # noqa: E731
     intrinsics = {key: repeat(facts.intrinsics[key]) for key in ("fx", "fy", "cx", "cy")}
     intrinsics.update(width=repeat(int(facts.intrinsics["width"])), height=repeat(int(facts.intrinsics["height"])))
@@ -96,8 +100,8 @@ def frame_block(schema: pa.Schema, facts: VideoFacts, first_frame: int, rgb: np.
         "scene_id": repeat(facts.scene_id),
         "camera_height_m": repeat(facts.camera_height_m),
         "illumination": repeat(facts.illumination),
-        "rgb": _images([png_bytes(image) for image in rgb]),
-        "depth": _images([png_bytes(image) for image in depth]),
+        "rgb": _images(encoded[:count]),
+        "depth": _images(encoded[count:]),
         "panoptic": _nested_lists(np.ascontiguousarray(panoptic, dtype=np.uint32)),
         "pose": _nested_lists(np.ascontiguousarray(poses, dtype=np.float64)),
         "intrinsics": [dict(zip(intrinsics, values)) for values in zip(*intrinsics.values())],
@@ -110,6 +114,10 @@ def frame_block(schema: pa.Schema, facts: VideoFacts, first_frame: int, rgb: np.
     }
     arrays = [_column(columns[field.name], field.type) for field in schema]
     return pa.RecordBatch.from_arrays(arrays, schema=schema)
+
+
+def _encode_serially(images: list[np.ndarray]) -> list[bytes]:
+    return [png_bytes(image) for image in images]
 
 
 def _column(values: Any, kind: pa.DataType) -> pa.Array:
