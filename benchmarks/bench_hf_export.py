@@ -10,8 +10,8 @@ load from other processes falls on all alike; medians and spreads go to benchmar
 
 - export: seconds, frames/s and bytes per frame of each format (one process each: under 2,000 frames the
   MVPd export does not start worker processes).
-- memory: resident set growth of the --hf export at its peak and after its first and its last video (flat
-  in the number of videos: one video, one row group at a time).
+- memory: the --hf export's peak resident set growth, and its resident set after each video (flat in the
+  number of videos: one video, one row group at a time): the highest of the first and of the second half.
 - read: frames/s of one pass over every row, one process: `datasets` plain (the Arrow cache made by the
   first `load_dataset`, timed apart as `prepare`) and streaming (straight from the Parquet shards), both
   `.with_format("numpy")` reading rgb, depth and panoptic, row by row and in batches of 8 rows;
@@ -29,7 +29,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -39,6 +38,7 @@ import psutil
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from bench_exports import timed  # noqa: E402
 from bench_split import PeakRss  # noqa: E402
 
 from pipeline.io.huggingface import export_hf_dataset  # noqa: E402
@@ -94,32 +94,30 @@ def measure(run: RunFolder, scratch: Path, repeats: int) -> dict[str, Any]:
     frames = int(sum(r["frames"] for r in run.read("videos").to_pylist() if r["embodiment"] == EMBODIMENT))
     hf, mvpd = scratch / "hf", scratch / "mvpd"
 
-    def export_hf() -> None:
-        export_hf_dataset(run, hf, embodiment=EMBODIMENT, overwrite=True)
+    def export_hf() -> int:
+        return sum(export_hf_dataset(run, hf, embodiment=EMBODIMENT, overwrite=True).frames.values())
 
-    def export_mvpd() -> None:
+    def export_mvpd() -> int:
         shutil.rmtree(mvpd, ignore_errors=True)
-        export_release_splits(run, mvpd, EMBODIMENT)
+        return sum(summary.frames for summary in export_release_splits(run, mvpd, EMBODIMENT))
 
-    seconds: dict[str, list[float]] = {"hf": [], "mvpd": []}
-    for _ in range(repeats):
-        for label, action in (("hf", export_hf), ("mvpd", export_mvpd)):
-            started = time.perf_counter()
-            action()
-            seconds[label].append(time.perf_counter() - started)
+    seconds = {label: times for label, (times, _) in timed({"hf": export_hf, "mvpd": export_mvpd}, repeats).items()}
     sizes = {"hf": folder_bytes(hf), "mvpd": folder_bytes(mvpd),
              "mvpd_without_lit_rgb": folder_bytes(mvpd, skip="imagesRGB.0000000020")}
 
-    memory: dict[str, list[float]] = {"peak_growth": [], "after_first_video": [], "after_last_video": []}
+    memory: dict[str, list[float]] = {"peak_growth": [], "first_half_max": [], "second_half_max": []}
+    series = []
     for _ in range(repeats):  # resident set after each video: flat in the number of videos written
         before = psutil.Process().memory_info().rss
-        after_video: list[int] = []
+        after_video: list[float] = []
         with PeakRss() as peak:
             export_hf_dataset(run, scratch / "hf-memory", embodiment=EMBODIMENT, overwrite=True,
-                              on_video=lambda name: after_video.append(psutil.Process().memory_info().rss))
-        for label, value in (("peak_growth", peak.peak), ("after_first_video", after_video[0]),
-                             ("after_last_video", after_video[-1])):
-            memory[label].append((value - before) / 2**20)
+                              on_video=lambda name: after_video.append(psutil.Process().memory_info().rss / 2**20))
+        half = len(after_video) // 2
+        memory["peak_growth"].append((peak.peak - before) / 2**20)
+        memory["first_half_max"].append(max(after_video[:half]))
+        memory["second_half_max"].append(max(after_video[half:]))
+        series.append(after_video)
 
     def prepare() -> int:
         shutil.rmtree(scratch / "cache", ignore_errors=True)
@@ -150,20 +148,17 @@ def measure(run: RunFolder, scratch: Path, repeats: int) -> dict[str, Any]:
         "prepare": prepare, "datasets_plain": read_plain, "datasets_streaming": read_streaming,
         "datasets_plain_batch8": read_plain_batched, "datasets_streaming_batch8": read_streaming_batched,
         "iter_clips": read_iter_clips}
-    rates: dict[str, list[float]] = {label: [] for label in reads}
-    counted: dict[str, int] = {}
-    for _ in range(repeats):
-        for label, action in reads.items():
-            started = time.perf_counter()
-            counted[label] = action()
-            rates[label].append(counted[label] / (time.perf_counter() - started))
+    read_times = timed(reads, repeats)
+    rates = {label: [frames / s for s in times] for label, (times, frames) in read_times.items()}
+    counted = {label: frames for label, (_, frames) in read_times.items()}
     return {
         "run": str(run.location), "embodiment": EMBODIMENT, "videos": len(videos), "frames": frames,
         "resolution": list(_resolution(run)), "repeats": repeats,
         "export_seconds": {label: summary(values) for label, values in seconds.items()},
         "export_fps": {label: summary([frames / s for s in values]) for label, values in seconds.items()},
         "bytes": sizes, "bytes_per_frame": {label: size / frames for label, size in sizes.items()},
-        "export_rss_growth_mib": {label: summary(values) for label, values in memory.items()},
+        "export_rss_mib": {label: summary(values) for label, values in memory.items()},
+        "export_rss_after_each_video_mib": series,
         "read_fps": {label: summary(values) for label, values in rates.items()},
         "read_frames": counted,
     }
@@ -192,8 +187,8 @@ def report(record: dict[str, Any]) -> None:
         print(f"export --{label:5s} {s['median']:6.2f} s (min {s['min']:.2f}, max {s['max']:.2f}), "
               f"{f['median']:6.1f} frames/s, {record['bytes_per_frame'][label] / 1024:7.1f} kB/frame")
     print(f"  --mvpd without the lit copy's JPEGs: {record['bytes_per_frame']['mvpd_without_lit_rgb'] / 1024:.1f} kB/frame")
-    for label, values in record["export_rss_growth_mib"].items():
-        print(f"export --hf RSS growth, {label}: {values['median']:.0f} MiB (min {values['min']:.0f}, "
+    for label, values in record["export_rss_mib"].items():
+        print(f"export --hf RSS, {label}: {values['median']:.0f} MiB (min {values['min']:.0f}, "
               f"max {values['max']:.0f})")
     for label, values in record["read_fps"].items():
         print(f"read {label:20s} {values['median']:7.1f} frames/s (min {values['min']:.1f}, max {values['max']:.1f})")
