@@ -133,7 +133,7 @@ def export_release(run: RunFolder, out_root: Path, split: str = "test", embodime
             write_json(staging / EMPTY_VIDEOS, empty_videos_file(rows))
             write_json(staging / ZERO_SHOT, zero_shot_file(run, split, rows))
             atomic_write_text(paths.root / f"{split}.txt", "".join(f"{s}\n" for s in sorted({r["scene_id"] for r in rows})))
-        _swap_into_place(staging, paths.folder)
+        swap_into_place(staging, paths.folder)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
@@ -445,7 +445,7 @@ def _write_filter_files(folder: Path, split: str, exported: list[ExportedVideo])
     write_json(folder / ZERO_SHOT, zero_shot)
 
 
-def _swap_into_place(staging: Path, target: Path) -> None:
+def swap_into_place(staging: Path, target: Path) -> None:
     """Rename the finished split into place; an older export is moved aside first, then deleted."""
     if not target.exists():
         os.replace(staging, target)
