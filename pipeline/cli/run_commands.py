@@ -377,7 +377,7 @@ def _unit_logs(run: RunFolder, unit: str, stage: str | None) -> list[tuple[str, 
         listed = sorted(key for key in run.store.list_objects("logs") if key.count("/") == 2)
         return [(key, run.store.read_text(key) or "") for key in listed
                 if key.split("/")[2] == wanted and stage in (None, key.split("/")[1])]
-    from pipeline.store import links
+    import pipeline.store.links as links
 
     # Listed and read through no link (`pipeline.store.links`): a linked log folder or log is not read.
     found = []

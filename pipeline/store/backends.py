@@ -35,7 +35,7 @@ from pipeline.errors import error_text
 from pipeline.store.lock import LOCK_KEY, RemoteRunLock, RunLock, local_holder, parse_holder
 from pipeline.store.marker_index import MAX_MARKER_BYTES, FsspecMarkerFolder, LocalMarkerFolder, MarkerFolder
 from pipeline.store.markers import Damage, Marker, OutputFile, file_checksum, marker_text, parse_marker
-from pipeline.store import links
+import pipeline.store.links as links
 from pipeline.store.links import FolderCheck
 from pipeline.store.names import (ATTEMPTS, DATASET_INDEX, JOB_FILE, STATE, RunFolderError, atomic_write_text,
                                   is_plain_name, is_run_path)

@@ -23,7 +23,7 @@ from typing import Callable
 
 import psutil
 
-from pipeline.store import links
+import pipeline.store.links as links
 from pipeline.store.names import ATTEMPTS, STAGING, STATE
 from pipeline.store.remote import RunStore
 from pipeline.store.run_folder import RunFolder

@@ -248,9 +248,7 @@ class FolderCheck:
                 mode = 0
             if mode is not None and stat.S_ISLNK(mode):
                 found = f"passes through the symbolic link {relative_folder}"
-            elif mode is not None and not stat.S_ISDIR(mode):
-                found = f"passes through {relative_folder}, which is not a folder"
-            elif mode is None:
+            elif mode is None or not stat.S_ISDIR(mode):  # a file where a folder should be: the file is missing
                 found = "is missing"
         if found is None:
             self.real.add(relative_folder)

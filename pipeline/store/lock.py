@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING, Iterator
 import psutil
 
 from pipeline.errors import error_text
-from pipeline.store import links
+import pipeline.store.links as links
 from pipeline.store.names import STATE
 
 if TYPE_CHECKING:
@@ -162,6 +162,7 @@ class RunLock(Lease):
 
     def __enter__(self) -> "RunLock":
         try:
+            self.root.mkdir(parents=True, exist_ok=True)  # the folder named (links above it are the user's)
             links.make_folder(self.root, STATE)  # `_state` a link: RunLinkError, nothing written through it
             self._take()
         except OSError as error:

@@ -35,7 +35,7 @@ import pyarrow.parquet as pq
 
 from pipeline.errors import error_text
 from pipeline.store.markers import ColumnarManifest, Marker, marker_problem, parse_marker
-from pipeline.store import links
+import pipeline.store.links as links
 from pipeline.store.names import RUN_PATH, STATE, RunFolderError
 
 log = logging.getLogger(__name__)

@@ -28,7 +28,7 @@ import yaml
 
 from pipeline.config import ConfigError, Job, job_from_resolved
 from pipeline.errors import error_text
-from pipeline.store import links
+import pipeline.store.links as links
 from pipeline.store.backends import LocalFiles, RunFiles, RunFolderError, StoreFiles
 from pipeline.store.links import FolderCheck
 from pipeline.store.datasets import CheckedStages, TrustedPart, damage_line
