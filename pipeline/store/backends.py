@@ -85,7 +85,6 @@ class LocalFiles:
             raise RunFolderError(f"{root}: exists, is not empty and has no {JOB_FILE}; choose an empty or new folder")
         try:
             root.mkdir(parents=True, exist_ok=True)
-            links.make_folder(root, STATE)  # what makes a folder a run (`is_run_folder`), from the start
         except OSError as error:  # read-only file system, a parent that is a file, no permission
             raise RunFolderError(f"{root}: cannot create the run folder ({error.strerror}); "
                                  "choose a writable place (--run-dir)") from None
@@ -99,6 +98,7 @@ class LocalFiles:
             raise RunFolderError(f"{self.root}: not a run folder (no {JOB_FILE}); give the folder `mvpd submit` wrote")
 
     def save_job(self, text: str) -> None:
+        links.make_folder(self.root, STATE)  # what makes a folder a run (`is_run_folder`), before its job file
         links.write_file(self.root, JOB_FILE, text.encode("utf-8"))
 
     def read_job(self) -> str:
