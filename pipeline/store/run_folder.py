@@ -118,6 +118,8 @@ class RunFolder:
         except yaml.YAMLError as error:
             raise ConfigError(f"{self.root / JOB_FILE}: not valid YAML ({' '.join(str(error).split())}); "
                               "resubmit the job") from None
+        except (OSError, UnicodeDecodeError, RecursionError) as error:  # a folder, bad bytes (a link: RunLinkError)
+            raise ConfigError(f"{self.root / JOB_FILE}: cannot be read ({error_text(error)}); resubmit the job") from None
         except (KeyError, TypeError, ValueError) as error:
             raise ConfigError(f"{self.root / JOB_FILE}: unreadable resolved job ({error}); resubmit the job") from None
 

@@ -21,6 +21,7 @@ from pipeline.store.garbage import GarbageReport, _collect_staging
 from pipeline.store.links import RunLinkError
 from pipeline.store.run_folder import RunFolder
 from tests.cli.test_confinement import invoke, make_run
+from tests.cli.test_trust import one_line
 from tests.demo_run import DEMO_VIDEO, demo_shaped_run
 
 
@@ -51,14 +52,6 @@ def victim(tmp_path: Path) -> Path:
 @pytest.fixture
 def run(tmp_path: Path) -> RunFolder:
     return make_run(tmp_path / "run")
-
-
-def one_line(result, code: int, *words: str) -> None:
-    assert result.exit_code == code, result.output
-    lines = [line for line in result.output.splitlines() if line.strip()]
-    assert len(lines) == 1 and "Traceback" not in result.output, result.output
-    for word in words:
-        assert word in result.output, result.output
 
 
 def linked(run: RunFolder, relative: str, target: Path) -> None:
