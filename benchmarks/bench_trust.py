@@ -156,14 +156,17 @@ ZARR_ARRAYS = ("rgb", "depth", "panoptic")  # a render store's arrays, each chun
 
 
 def build_files(root: Path, units: int) -> RunFolder:
-    """A run whose stage has `units` markers of 39 files each, every file on disk: a Zarr-shaped store of 36
-    files in 10 folders and 3 Parquet parts (what `status` stats), and the stage's index."""
+    """A run whose stage has `units` markers of 39 files each, every file on disk: a store of 36 files in ~80
+    folders shaped as render writes it (arrays rgb, depth, panoptic, 64-frame shards) and 3 Parquet parts
+    (what `status` stats), and the stage's index."""
     run = RunFolder.create(root, job())
     for index in range(units):
         video = f"e.scene-{index // 100:05d}.{index % 100:010d}.0000001000"
         store = f"videos/e/{video}.zarr"
         names = [f"{store}/zarr.json", *(f"{store}/{a}/zarr.json" for a in ZARR_ARRAYS)]
-        names += [f"{store}/{a}/c/{t}/0/0" for a in ZARR_ARRAYS for t in range(11)][:FILES_PER_MARKER - 3 - len(names)]
+        # As render writes them: rgb/c/<t>/0/0/0, depth and panoptic /c/<t>/0/0, one shard per 64 frames.
+        names += [f"{store}/{a}/c/{t}/0/0" + ("/0" if a == "rgb" else "") for t in range(11) for a in ZARR_ARRAYS]
+        names = names[:FILES_PER_MARKER - 3]
         parts = [f"{dataset}/part-{video}.parquet" for dataset in ("videos", "segments", "frame_stats")]
         files = []
         for number, relative in enumerate(names + parts):

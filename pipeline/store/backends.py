@@ -25,7 +25,7 @@ import shutil
 from dataclasses import asdict
 from pathlib import Path
 from stat import S_ISLNK, S_ISREG
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import google_crc32c
 import pyarrow as pa
@@ -142,21 +142,25 @@ class LocalFiles:
                       if is_folder and links.entries(self.root, f"{STATE}/{DATASET_INDEX}/{name}"))
 
     # ----------------------------------------------------------------------------------- damage
-    def check(self, marker: Marker, verify: bool, folders: FolderCheck | None = None) -> list[Damage]:
-        """Missing, resized or linked files (an lstat each, and one per folder of the pass `folders`); with
-        `verify`, also a checksum mismatch. No link is followed (`pipeline.store.links`)."""
+    def check(self, marker: Marker, verify: bool, folders: FolderCheck | None = None,
+              deep: bool = True) -> list[Damage]:
+        """Missing, resized or linked files (an lstat each) and outputs reached through a link (an lstat per
+        folder and pass `folders`); with `verify`, also a checksum mismatch. `deep` also checks every folder
+        inside a Zarr store (a reader about to open it; `status` checks the store's own folder: a full-scale
+        store nests ~80 folders for its ~40 files). Nothing is followed through a link (`pipeline.store.links`)."""
         # A full-scale render marker names ~40 files and a run 18,000 markers: one os.lstat on a joined
         # string per file, no Path object (a Path per file tripled the cost of `mvpd status`).
         folders = folders or FolderCheck(self.root)
-        prefix = folders.prefix
-        lstat, folder_problem, real = os.lstat, folders.problem, folders.real
-        found = []
+        prefix, lstat, folder_problem, real = folders.prefix, os.lstat, folders.problem, folders.real
         # Without `verify` only paths and sizes are needed: a marker from the index gives them as columns.
-        entries = (((f.path, f.size, f.crc32c) for f in marker.files) if verify
-                   else ((path, size, "") for path, size in marker.file_sizes()))
+        entries = ([(f.path, f.size, f.crc32c) for f in marker.files] if verify
+                   else [(path, size, "") for path, size in marker.file_sizes()])
+        blocked = _blocked_outputs(marker.outputs, {entry[0] for entry in entries}, folder_problem)
+        found = []
         for path, expected, crc32c in entries:
             parent = path.rpartition("/")[0]
-            problem = None if parent in real else folder_problem(parent)
+            problem = (next((p for o, p in blocked.items() if path.startswith(o)), None) if blocked else None) \
+                or (folder_problem(parent) if deep and parent not in real else None)
             if problem is None:
                 try:
                     info = lstat(prefix + path)
@@ -486,6 +490,18 @@ def _read(path: Path) -> str | None:
         return path.read_text(encoding="utf-8")
     except FileNotFoundError:
         return None
+
+
+def _blocked_outputs(outputs: list[str], files: set[str], folder_problem: Callable[[str], str | None]) -> dict[str, str]:
+    """Output (a file, or a folder such as a Zarr store, with a '/' after it) -> why it is not reached through
+    real folders only, for the outputs that are not."""
+    blocked = {}
+    for output in outputs:
+        is_file = output in files
+        problem = folder_problem(output.rpartition("/")[0] if is_file else output)
+        if problem is not None:
+            blocked[output if is_file else f"{output}/"] = problem
+    return blocked
 
 
 def _is_file(path: Path) -> bool:

@@ -11,7 +11,8 @@ never followed); a read opens its file with `O_NOFOLLOW`. The root itself is the
 links above it are theirs.
 
 Readers of committed files go through the markers' size check (`LocalFiles.check`), which `lstat`s each
-folder of a manifest once per pass and each file itself, so a unit whose files pass through a link is
+file itself and the folders of each output (once per pass, `FolderCheck`); a reader of a video and `status
+--verify` also check every folder inside its Zarr store. So a unit whose files pass through a link is
 damaged and no reader is handed its paths. `run_links` lists the links among the run's own folders for
 `mvpd status` and for a driver, which refuses to start on such a run.
 """

@@ -198,8 +198,8 @@ class RunFolder:
         """
         units, found = list(markers), self.files.recorded_damage(list(markers.values()))
         check = self.files.check
-        if isinstance(self.files, LocalFiles):  # each folder of the run lstat'ed once in this pass, not per file
-            check = partial(check, folders=FolderCheck(self.root))
+        if isinstance(self.files, LocalFiles):  # each output's folders lstat'ed once in this pass, not per file
+            check = partial(check, folders=FolderCheck(self.root), deep=False)
         problems = {unit: check(markers[unit], False) + noted for unit, noted in zip(units, found)}
         return {unit: damage for unit, damage in problems.items() if damage}
 
