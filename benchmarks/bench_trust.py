@@ -8,7 +8,8 @@ median and spread):
                  the same load with the checks switched off (the peer)
   commit_fence   committing `--commits` one-file units on local disk under the run lock, with the fence (two
                  reads of the lock file per commit) against the same commits without it (the peer)
-  link_checks    issue 29: what closing the run folder to links costs, this tree against `--against` (b5d67c7,
+  link_checks    issue 29: what closing the run folder to links costs (wall and CPU seconds: on a loaded machine the
+                 CPU time of the process is the steadier figure), this tree against `--against` (b5d67c7,
                  checked out as a git worktree): loading a stage of `--link-units` markers of 39 files (from
                  the index, and from the marker files), `status`'s check of every file (an lstat each and one
                  per folder, against a stat each), and a commit of a one-file unit under the lock. Each
@@ -180,21 +181,31 @@ def build_files(root: Path, units: int) -> RunFolder:
     return run
 
 
+def timed_both(found: dict[str, float], name: str, action: Callable[[], object], per: int = 1) -> None:
+    """Wall and CPU seconds (this process: user + system, so the syscalls count and other processes' load
+    does not) of `action`, divided by `per`, into `found` as `<name>_s` and `<name>_cpu_s`."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    action()
+    found[f"{name}_s"] = (time.perf_counter() - wall) / per
+    found[f"{name}_cpu_s"] = (time.process_time() - cpu) / per
+
+
 def child_figures(folder: Path, commits: int) -> dict[str, float]:
     """One repetition of the link-check figures with the code this process imported (seconds)."""
     run = RunFolder.open(folder)
     index = run.root / "_state" / STAGE / INDEX_NAME
     saved_index = index.read_bytes()
-    found: dict[str, float] = {"markers_index_s": timed(lambda: run.markers(STAGE))}
+    found: dict[str, float] = {}
+    timed_both(found, "markers_index", lambda: run.markers(STAGE))
     index.unlink()
     marker_index.REFRESH_AFTER = 10**9  # read every marker file, write no index
     try:
-        found["markers_files_s"] = timed(lambda: run.markers(STAGE))
+        timed_both(found, "markers_files", lambda: run.markers(STAGE))
     finally:
         index.write_bytes(saved_index)
     loaded = run.markers(STAGE)
     damage: dict[str, Any] = {}
-    found["status_s"] = timed(lambda: damage.update(run.damage(loaded)))
+    timed_both(found, "status", lambda: damage.update(run.damage(loaded)))
     assert not damage, next(iter(damage.values()))
     with tempfile.TemporaryDirectory(prefix="bench-commit-", dir=folder.parent) as scratch:
         fenced = RunFolder.create(Path(scratch) / "run", job())
@@ -205,7 +216,7 @@ def child_figures(folder: Path, commits: int) -> dict[str, float]:
                     (staging / "commit").mkdir()
                     (staging / "commit" / f"part-u{number}.bin").write_bytes(b"x" * 64)
                     fenced.commit_unit("commit", f"u{number}", staging, "", {}, 0.0, 1, time.time(), socket.gethostname())
-            found["commit_s"] = timed(commit_all) / commits
+            timed_both(found, "commit", commit_all, commits)
     return found
 
 

@@ -158,9 +158,10 @@ class LocalFiles:
         blocked = _blocked_outputs(marker.outputs, {entry[0] for entry in entries}, folder_problem)
         found = []
         for path, expected, crc32c in entries:
-            parent = path.rpartition("/")[0]
-            problem = (next((p for o, p in blocked.items() if path.startswith(o)), None) if blocked else None) \
-                or (folder_problem(parent) if deep and parent not in real else None)
+            problem = next((p for o, p in blocked.items() if path.startswith(o)), None) if blocked else None
+            if deep and problem is None:
+                parent = path.rpartition("/")[0]
+                problem = None if parent in real else folder_problem(parent)
             if problem is None:
                 try:
                     info = lstat(prefix + path)
@@ -186,6 +187,7 @@ class LocalFiles:
         note = _UNWRITTEN_NOTES.get(str(self.root / where))
         try:
             if note is None:
+                os.lstat(self.root / where)  # most units have no note: one syscall, as reading one was
                 note = json.loads(links.read_bytes(self.root, where))
         except FileNotFoundError:
             return []

@@ -185,7 +185,8 @@ def read_bytes(root: Path | str, relative: str, limit: int = -1) -> bytes:
     """The bytes of the file `root/relative` (the first `limit` ones when given), read without following a
     link (IsADirectoryError for a folder)."""
     with open(open_file(root, relative), "rb") as handle:
-        return handle.read(limit)
+        # read(limit) would allocate `limit` bytes first: ask for them only when the file is that big.
+        return handle.read(limit) if 0 <= limit <= os.fstat(handle.fileno()).st_size else handle.read()
 
 
 def entries(root: Path | str, relative: str) -> list[tuple[str, bool]]:

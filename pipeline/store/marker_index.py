@@ -117,9 +117,9 @@ class LocalMarkerFolder:
             with links.folder(self.root, self.relative) as descriptor:
                 for name in names:
                     try:
-                        with open(os.open(name, _READ, dir_fd=descriptor), encoding="utf-8") as handle:
-                            text = handle.read(MAX_MARKER_BYTES + 1)
-                        texts[name] = text if len(text) <= MAX_MARKER_BYTES else ""  # too big to be a marker
+                        with open(os.open(name, _READ, dir_fd=descriptor), "rb") as handle:
+                            too_big = os.fstat(handle.fileno()).st_size > MAX_MARKER_BYTES
+                            texts[name] = "" if too_big else handle.read().decode("utf-8")
                     except FileNotFoundError:
                         continue
                     except (UnicodeDecodeError, OSError):  # a folder, a link (ELOOP), bad bytes: no marker
