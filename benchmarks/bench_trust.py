@@ -229,8 +229,9 @@ def link_checks(units: int, commits: int, repeats: int, against: str, workdir: P
         run_folder = workdir / "links-run"
         build_files(run_folder, units)
         times: dict[str, dict[str, list[float]]] = {"new": {}, "old": {}}
-        for _ in range(repeats):
-            for side, tree in (("old", old_tree), ("new", REPO)):
+        for repeat in range(repeats):
+            pair = (("old", old_tree), ("new", REPO))
+            for side, tree in pair[::-1] if repeat % 2 else pair:  # each side first in every other repetition
                 output = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child", str(tree),
                                          "--child-run", str(run_folder), "--commits", str(commits)],
                                         check=True, capture_output=True, text=True).stdout
@@ -272,7 +273,7 @@ def main() -> None:
             results[name] = figures[name]()
             results[name]["load_average_1m"] = [round(load_before, 2), round(os.getloadavg()[0], 2)]
             print(name, json.dumps(results[name], indent=1), flush=True)
-    RESULTS.write_text(json.dumps(results, indent=1) + "\n")
+            RESULTS.write_text(json.dumps(results, indent=1) + "\n")  # before the scratch folder's slow removal
     print(f"wrote {RESULTS}")
 
 
