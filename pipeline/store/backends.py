@@ -219,7 +219,8 @@ class LocalFiles:
     def _clear_note(self, stage: str, unit: str) -> None:
         path = self._note_path(stage, unit)
         _UNWRITTEN_NOTES.pop(str(self.root / path), None)
-        if os.path.lexists(self.root / path):  # never unlink a note that is not there: on a read-only file system that fails (EROFS)
+        # Never unlink a note that is not there: on a read-only file system that fails (EROFS).
+        if os.path.lexists(self.root / path):
             links.remove(self.root, path)
 
     # -------------------------------------------------------------------------- committed files
@@ -494,7 +495,8 @@ def _read(path: Path) -> str | None:
         return None
 
 
-def _blocked_outputs(outputs: list[str], files: set[str], folder_problem: Callable[[str], str | None]) -> dict[str, str]:
+def _blocked_outputs(outputs: list[str], files: set[str],
+                     folder_problem: Callable[[str], str | None]) -> dict[str, str]:
     """Output (a file, or a folder such as a Zarr store, with a '/' after it) -> why it is not reached through
     real folders only, for the outputs that are not."""
     blocked = {}

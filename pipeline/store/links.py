@@ -117,7 +117,7 @@ def remove(root: Path | str, relative: str) -> None:
             except FileNotFoundError:
                 return
             if stat.S_ISDIR(info.st_mode):
-                shutil.rmtree(name, dir_fd=descriptor)
+                shutil.rmtree(name, dir_fd=descriptor, ignore_errors=True)  # as before: what cannot go stays
             else:
                 os.unlink(name, dir_fd=descriptor)
     except FileNotFoundError:
