@@ -10,6 +10,11 @@ Since the trimesh reader replaced the hand-written GLB parser, every mesh is rea
     - with `--compare-ref REF` (e.g. main), the hand-written `read_glb` of that git ref as the peer.
 Run:
     cd /work/main && .venv/bin/python benchmarks/bench_mesh_readers.py [--compare-ref main]
+
+`--real-size` (issue 30) measures the PLY reader on files of the sizes the datasets publish instead, each
+reader in a fresh subprocess per run so that its peak RSS is its own (benchmarks/ply_real_size.py says
+what and how; results: benchmarks/results/mesh_readers_real_size.json):
+    cd /work/main && .venv/bin/python benchmarks/bench_mesh_readers.py --real-size [--runs 3] [--folder DIR]
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from types import ModuleType
 from typing import Callable
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -31,17 +37,22 @@ sys.path.insert(0, str(ROOT))
 RUNS = 5
 
 
-def _reference_reader(ref: str, folder: Path) -> Callable[[Path], object]:
-    """`read_glb` of pipeline/scenes/glb.py as it is at git `ref` (loaded as a stand-alone module)."""
-    source = subprocess.run(["git", "show", f"{ref}:pipeline/scenes/glb.py"], cwd=ROOT, check=True,
-                            capture_output=True, text=True).stdout
-    path = folder / "reference_glb.py"
-    path.write_text(source, encoding="utf-8")
-    spec = importlib.util.spec_from_file_location("reference_glb", path)
+def module_at_ref(ref: str, source: str, folder: Path) -> ModuleType:
+    """The module `source` (e.g. pipeline/scenes/glb.py) as it is at git `ref`, loaded stand-alone from `folder`."""
+    text = subprocess.run(["git", "show", f"{ref}:{source}"], cwd=ROOT, check=True, capture_output=True, text=True).stdout
+    name = "reference_" + Path(source).stem
+    path = folder / f"{name}.py"
+    path.write_text(text, encoding="utf-8")
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    sys.modules["reference_glb"] = module  # dataclasses look their module up while the class is built
+    sys.modules[name] = module  # dataclasses look their module up while the class is built
     spec.loader.exec_module(module)  # type: ignore[union-attr]
-    return module.read_glb
+    return module
+
+
+def _reference_reader(ref: str, folder: Path) -> Callable[[Path], object]:
+    """`read_glb` of pipeline/scenes/glb.py as it is at git `ref`."""
+    return module_at_ref(ref, "pipeline/scenes/glb.py", folder).read_glb
 
 
 def main() -> None:
@@ -55,7 +66,15 @@ def main() -> None:
 
     parser = argparse.ArgumentParser()
     parser.add_argument("--compare-ref", default=None, help="git ref whose glb.read_glb is timed as the peer")
+    parser.add_argument("--real-size", action="store_true", help="PLY files of the datasets' sizes (issue 30)")
+    parser.add_argument("--runs", type=int, default=3, help="--real-size: fresh-process runs per reader and file")
+    parser.add_argument("--folder", default=None, help="--real-size: where the big files are written (kept)")
     options = parser.parse_args()
+    if options.real_size:
+        from benchmarks.ply_real_size import run_real_size
+
+        run_real_size(options.runs, Path(options.folder) if options.folder else None)
+        return
     with tempfile.TemporaryDirectory() as folder:
         text = write_hm3dsem(generate_house(seed=2, detail=1.0), folder)
         glb = text.with_name(text.name.replace(".semantic.txt", ".glb"))

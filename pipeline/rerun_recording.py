@@ -18,7 +18,6 @@ Needs the `view` extra (rerun-sdk).
 from __future__ import annotations
 
 import logging
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -29,6 +28,7 @@ from pipeline.io.reader import LoadedVideo, VideoNotFoundError, load_video
 from pipeline.scenes.categories import categories
 from pipeline.scenes.scans import palette_color
 from pipeline.scenes.scene import Scene
+from pipeline.store.names import replaced
 from pipeline.store.run_folder import RunFolder
 
 LOG = logging.getLogger(__name__)
@@ -126,10 +126,9 @@ def write_recording(run: RunFolder, name: str, out: Path, embodiment: str | None
     scene = _scene_of(run, row["scene_id"])
     ids, classes = _class_table(video)
     out.parent.mkdir(parents=True, exist_ok=True)
-    temporary = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    recording = rr.RecordingStream("mvpd-view", recording_id=f"{row['embodiment']}/{row['video_name']}")
-    recording.save(str(temporary))
-    try:
+    with replaced(out) as temporary:  # renamed over `out` at the end: a new file, never a shared one
+        recording = rr.RecordingStream("mvpd-view", recording_id=f"{row['embodiment']}/{row['video_name']}")
+        recording.save(str(temporary))
         _log_static(rr, recording, scene, video, classes)
         intrinsics = video.intrinsics
         image_from_camera = np.array([[intrinsics["fx"], 0, intrinsics["cx"]], [0, intrinsics["fy"], intrinsics["cy"]],
@@ -151,9 +150,6 @@ def write_recording(run: RunFolder, name: str, out: Path, embodiment: str | None
                 on_frame(index + 1, video.frames)
         recording.flush()
         recording.disconnect()
-        temporary.replace(out)
-    finally:
-        temporary.unlink(missing_ok=True)
     return WrittenRecording(out, row["embodiment"], row["video_name"], video.frames, len(classes) - 1)
 
 

@@ -53,27 +53,35 @@ def export_command(
     run_dir: Annotated[Path, typer.Argument(help="run folder to export")],
     mvpd: Annotated[Optional[Path],
                     typer.Option("--mvpd", help="MVPd root to write; the split folder goes inside it")] = None,
-    split: Annotated[Optional[str], typer.Option(help="split to write [default: every split of the run's split stage; without one, every video as 'test']")] = None,
+    split: Annotated[Optional[str], typer.Option(help="split to write [default: every split of the run's split stage; without one, every video as 'test' (--hf: 'train')]")] = None,
     embodiment: Annotated[Optional[str], typer.Option(help="embodiment to export; needed when the job has several [default: the only one]")] = None,
     overwrite: Annotated[bool, typer.Option(
-        "--overwrite", help="replace an existing export (<mvpd>/<split>, or the --coco/--yolo files)")] = False,
+        "--overwrite", help="replace an existing export (<mvpd>/<split>, the --coco/--yolo files, or the --hf folder)")] = False,
     coco: Annotated[Optional[Path],
                     typer.Option("--coco", help="write COCO instance segmentation here instead")] = None,
     yolo: Annotated[Optional[Path],
                     typer.Option("--yolo", help="write the ultralytics YOLO-seg layout here instead")] = None,
+    hf: Annotated[Optional[Path], typer.Option(
+        "--hf", help="write a Hugging Face dataset folder here instead (`datasets.load_dataset(DIR)`; extra `hf`)")] = None,
     every: Annotated[int, typer.Option(help="--coco/--yolo: keep every n-th frame of each video")] = 1,
     categories: Annotated[str, typer.Option(help="--coco/--yolo: agnostic (one class) or mpcat40")] = "agnostic",
     drop_stuff: Annotated[bool,
                           typer.Option("--drop-stuff", help="--coco/--yolo: leave out wall, floor, ceiling")] = False,
 ) -> None:
     """Write a run's videos as an MVPd release split (JPEG colour, uint16 depth PNG, COCO panoptic PNG, JSON),
-    or as training data: COCO instance segmentation (--coco) or the ultralytics YOLO layout (--yolo)."""
+    or as training data: COCO instance segmentation (--coco), the ultralytics YOLO layout (--yolo) or a
+    Hugging Face dataset folder (--hf)."""
     from pipeline.cli.console import check_plain_name, console, fail
     from pipeline.split.selection import has_split
 
     if split is not None:
         check_plain_name(split, "--split")
 
+    if hf is not None:
+        if sum(target is not None for target in (mvpd, coco, yolo)):
+            fail("give exactly one of --mvpd, --coco, --yolo or --hf")
+        _hf_export(run_dir, hf, split, embodiment, overwrite)
+        return
     if coco is not None or yolo is not None or mvpd is None:
         _training_export(run_dir, coco, yolo, mvpd, every, categories, drop_stuff, embodiment, overwrite)
         return
@@ -124,6 +132,26 @@ def _training_export(run_dir: Path, coco: Optional[Path], yolo: Optional[Path], 
     frames = ", ".join(f"{split} {count}" for split, count in summary.frames.items())
     console.print(f"export: {sum(summary.frames.values())} frames ({frames}), {summary.objects} objects -> "
                   f"{summary.out} in {summary.seconds:.1f} s")
+
+
+def _hf_export(run_dir: Path, out: Path, split: Optional[str], embodiment: Optional[str], overwrite: bool) -> None:
+    """`export --hf DIR`: the run's splits as a Hugging Face dataset folder."""
+    from pipeline.cli.console import console, fail
+    from pipeline.io.huggingface import HfExportError, export_hf_dataset
+
+    try:
+        run = RunFolder.open(run_dir)
+        with out_folder(out, EXPORT, "--hf") as folder, _video_progress("export") as (on_start, on_video):
+            summary = export_hf_dataset(run, folder, split, embodiment, overwrite, on_start=on_start,
+                                        on_video=on_video)
+    except (HfExportError, *USAGE_ERRORS) as error:
+        fail(str(error))
+    if not summary.has_split:
+        console.print(f"{run_dir}: the run has no split; every video was exported as one split named "
+                      f"`{next(iter(summary.frames))}`, with null filter flags")
+    frames = ", ".join(f"{name} {count}" for name, count in summary.frames.items())
+    console.print(f"export: {sum(summary.frames.values())} frames ({frames}) of {summary.videos} videos in "
+                  f"{summary.shards} shards -> {summary.out} in {summary.seconds:.1f} s")
 
 
 def import_command(

@@ -13,18 +13,13 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from pipeline.store.names import JOB_FILE, STATE
+from pipeline.store.names import atomic_write_text, is_run_folder, replaced
 
 TAG = ".mvpd-out"  # in a folder output: the command that wrote it
 
 
 class OutPathError(ValueError):
     """An output path the command must not write to; the message names the option, the path and the fix."""
-
-
-def is_run_folder(path: Path) -> bool:
-    """A run folder (or prediction folder): it holds a job file or markers."""
-    return (path / JOB_FILE).is_file() or (path / STATE).is_dir()
 
 
 def check_out_location(path: Path, option: str = "--out") -> Path:
@@ -47,14 +42,24 @@ def check_out_file(path: Path, option: str = "--out") -> Path:
     return resolved
 
 
+@contextmanager
+def out_file(path: Path, option: str = "--out") -> Iterator[Path]:
+    """Check `path` (check_out_file) and yield a temporary name beside it to write the file to; it is renamed
+    over `path` when the block succeeds. So `path` names a new file: one that was a hard link of a run's file
+    (or any other file) keeps its bytes."""
+    with replaced(check_out_file(path, option)) as temporary:
+        yield temporary
+
+
 def check_out_folder(path: Path, command: str, option: str = "--out") -> Path:
     """`path` resolved, when `command` may write a folder there: new, empty, or written by `command` before."""
     resolved = check_out_location(path, option)
     if resolved.exists() and not resolved.is_dir():
         raise OutPathError(f"{option} {path}: is a file; give a folder path")
+    if is_run_folder(resolved):  # whatever a tag file in it says: a tag counts only outside every run
+        raise OutPathError(f"{option} {path}: is a run folder; write outside any run folder")
     if resolved.is_dir() and any(resolved.iterdir()) and _tag(resolved) != command:
-        what = "a run folder" if is_run_folder(resolved) else "not empty"
-        raise OutPathError(f"{option} {path}: is {what} and was not written by `{command}`; "
+        raise OutPathError(f"{option} {path}: is not empty and was not written by `{command}`; "
                            "choose a new or empty folder")
     return resolved
 
@@ -69,7 +74,7 @@ def out_folder(path: Path, command: str, option: str = "--out") -> Iterator[Path
         yield resolved
     finally:
         if resolved.is_dir() and any(resolved.iterdir()) and _tag(resolved) != command:
-            (resolved / TAG).write_text(command + "\n", encoding="utf-8")
+            atomic_write_text(resolved / TAG, command + "\n")  # a new file: a linked tag is replaced, not followed
 
 
 def _tag(folder: Path) -> str | None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from enum import Enum
 from pathlib import Path
 from typing import Annotated, Optional
@@ -11,7 +12,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from pipeline.cli.console import EXIT_FAILED, EXIT_OK, console, fail, print_table, stage_progress
-from pipeline.cli.out_paths import check_out_file
+from pipeline.cli.out_paths import check_out_file, out_file
 from pipeline.config import ConfigError, Job, load_job
 from pipeline.io.dataset_stats import (COMPARISON_COLUMNS, SPLIT_ROWS, DatasetStats, StatsError, dataset_stats,
                                        write_stats_picture)
@@ -222,8 +223,25 @@ def status(
         console.print(f"[yellow]status table of stage {damage.unit}[/]: {damage.path} {damage.problem}; its outcomes "
                       "were rebuilt from markers (failed units show as pending) until the stage runs again",
                       soft_wrap=True)
-    unhealthy = any(s.failed or s.damaged for s in state.stages)
+    bad_markers = _print_run_damage(run)
+    unhealthy = any(s.failed or s.damaged for s in state.stages) or bad_markers
     raise typer.Exit(EXIT_FAILED if unhealthy else EXIT_OK)
+
+
+def _print_run_damage(run: RunFolder) -> bool:
+    """Say, one line each, the links inside the run and the marker files that are no marker (a folder, a
+    link, bytes that are no marker's JSON), each with its repair; True when there was any."""
+    from pipeline.store.links import link_repair, run_links
+
+    found = run_links(run.root) if run.store is None else []
+    for relative in found:
+        console.print(f"[red]link[/] {escape(link_repair(run.location, relative))}", soft_wrap=True)
+    bad = sorted((stage, name) for stage, names in run.unreadable_markers.items() for name in names)
+    for stage, name in bad:
+        console.print(f"[red]{stage}/{escape(name.removesuffix('.json'))}[/] marker _state/{stage}/{escape(name)} is no "
+                      f"readable marker (the unit is not done); `mvpd rerun {run.location} --stage {stage}` runs it "
+                      "again and replaces it", soft_wrap=True)
+    return bool(found or bad)
 
 
 def _verify(run: RunFolder, executor: str) -> None:
@@ -249,7 +267,8 @@ def query_command(
                                               "500MB, 50% (of this machine's); it never spills to disk")] = DEFAULT_MEMORY_LIMIT,
 ) -> None:
     """Query the run's Parquet metadata with SQL (DuckDB)."""
-    target = check_out_file(out) if out is not None else None
+    if out is not None:
+        check_out_file(out)  # refused before the query runs
     try:
         relation = query(RunFolder.open(run_dir), sql, timeout, memory_limit)
         if fmt is OutputFormat.table:
@@ -259,7 +278,8 @@ def query_command(
                 table.add_row(*[_cell(v) for v in row])
             print_table(table)
             return
-        text = write_result(relation, fmt.value, target)
+        with out_file(out) if out is not None else nullcontext(None) as target:  # a new file renamed over --out
+            text = write_result(relation, fmt.value, target)
     except QueryStopped as error:  # its time or memory bound: the query was fine, exit 1
         fail(str(error), EXIT_FAILED)
     except USAGE_ERRORS as error:
@@ -337,7 +357,10 @@ def logs(
         run = RunFolder.open(run_dir)
     except USAGE_ERRORS as error:
         fail(str(error))
-    found = _unit_logs(run, unit, stage)
+    try:
+        found = _unit_logs(run, unit, stage)
+    except RunFolderError as error:  # a link on the way to the logs: not followed
+        fail(str(error))
     if not found:
         fail(f"{run.location}/logs: no log for unit {unit!r}{f' of stage {stage!r}' if stage else ''}; "
              "unit ids are listed by `mvpd status` and `_state/`")
@@ -357,12 +380,18 @@ def _unit_logs(run: RunFolder, unit: str, stage: str | None) -> list[tuple[str, 
         listed = sorted(key for key in run.store.list_objects("logs") if key.count("/") == 2)
         return [(key, run.store.read_text(key) or "") for key in listed
                 if key.split("/")[2] == wanted and stage in (None, key.split("/")[1])]
-    logs_folder = run.root / "logs"
-    if not logs_folder.is_dir():
-        return []
-    return [(entry.relative_to(run.root).as_posix(), entry.read_text(encoding="utf-8", errors="replace"))
-            for folder in sorted(logs_folder.iterdir()) if folder.is_dir() and stage in (None, folder.name)
-            for entry in sorted(folder.iterdir()) if entry.name == wanted and entry.is_file()]
+    import pipeline.store.links as links
+
+    # Listed and read through no link (`pipeline.store.links`): a linked log folder or log is not read.
+    found = []
+    for folder, is_folder in sorted(links.entries(run.root, "logs")):
+        if is_folder and stage in (None, folder) and (wanted, False) in links.entries(run.root, f"logs/{folder}"):
+            try:
+                text = links.read_bytes(run.root, f"logs/{folder}/{wanted}")
+            except (OSError, RunFolderError):  # a link or a folder by that name: no log of the unit
+                continue
+            found.append((f"logs/{folder}/{wanted}", text.decode("utf-8", errors="replace")))
+    return found
 
 
 def gc_command(

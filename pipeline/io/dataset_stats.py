@@ -14,6 +14,7 @@ import numpy as np
 
 from pipeline.io.query import connect
 from pipeline.lazy_import import lazy_module
+from pipeline.store.names import replaced
 from pipeline.store.run_folder import RunFolder
 from pipeline.scenes.categories import categories
 
@@ -181,10 +182,9 @@ def write_stats_picture(run: RunFolder, stats: DatasetStats, out: Path, top: int
                     f"{sum(r['frames'] for r in stats.per_embodiment)} frames, "
                     f"{sum(r['masks'] for r in stats.per_embodiment)} masks, {stats.instances} object instances")
     out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(f".{out.name}.partial")
-    figure.savefig(partial, dpi=90, format="png")
+    with replaced(out) as partial:  # never a half-written picture under the real name, never a shared file
+        figure.savefig(partial, dpi=90, format="png")
     plt.close(figure)
-    partial.replace(out)  # never a half-written picture under the real name
     return out
 
 

@@ -25,7 +25,7 @@ from pipeline.config import config_hash
 from pipeline.evaluate.predictions import RLE_FOLDER, read_rle_file
 from pipeline.evaluate.vsq import AGGREGATE, ZERO_SHOT, Counts, VideoCounts, VsqProtocol, summarize
 from pipeline.models.predict import NO_SPLIT, SELF_PROMPTING_SUFFIX, ModelConfig, build_model, predict_run, resolve_embodiment
-from pipeline.store.names import atomic_write_text
+from pipeline.store.names import atomic_write_text, replaced
 from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.runner import Observer
 
@@ -243,7 +243,8 @@ def _plot_by_k(scores: list[ModelScores], path: Path) -> Path:
     axes.legend(fontsize=8)
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=110)
+    with replaced(path) as temporary:  # a new file (see `replaced`): never one shared by a hard link
+        figure.savefig(temporary, dpi=110, format="png")
     plt.close(figure)
     return path
 
@@ -265,7 +266,8 @@ def _plot_by_height(scores: list[ModelScores], path: Path) -> Path:
         axis.legend(fontsize=8)
     axes[0][0].set_ylabel("VSQ^k, percent")
     figure.tight_layout()
-    figure.savefig(path, dpi=110)
+    with replaced(path) as temporary:  # a new file (see `replaced`): never one shared by a hard link
+        figure.savefig(temporary, dpi=110, format="png")
     plt.close(figure)
     return path
 
@@ -324,6 +326,7 @@ def _picture_strip(run: RunFolder, embodiment: str, specs: Sequence[str], out: P
         axes[row][0].set_ylabel(f"frame {t}", fontsize=8)
     figure.suptitle(names[0], fontsize=9)
     figure.tight_layout()
-    figure.savefig(path, dpi=100)
+    with replaced(path) as temporary:  # a new file (see `replaced`): never one shared by a hard link
+        figure.savefig(temporary, dpi=100, format="png")
     plt.close(figure)
     return path

@@ -24,6 +24,7 @@ from pipeline.io.tables import spec
 from pipeline.plan.navigable import (MeshQuery, NavigableArea, NavigableAreaError, compute_navigable_area, drawable_islands,
                                       island_summary)
 from pipeline.plan.stage import navmesh_path
+from pipeline.store.names import replaced
 from pipeline.store.run_folder import RunFolder
 from pipeline.scenes.preview import top_down_image
 from pipeline.scenes.scene import Scene
@@ -167,9 +168,10 @@ def write_plan_preview(run: RunFolder, scene_id: str, out: Path, embodiment: str
     drawable = drawable_islands(area, body.max_step, job.plan.min_island_area, job.plan.reachable_only)
     image = preview_image(scene, area, floor_paths, size, drawable)
     out.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
-        raise PlanPreviewError(f"{out}: could not write the PNG; check the folder is writable "
-                               "and the name ends in .png")
+    with replaced(out) as temporary:  # a new file (see `replaced`): never one shared by a hard link
+        if not cv2.imwrite(str(temporary), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+            raise PlanPreviewError(f"{out}: could not write the PNG; check the folder is writable "
+                                   "and the name ends in .png")
     return PlanPreview(out, name, len(floor_paths), int(drawable.sum()), area.area_m2)
 
 

@@ -16,6 +16,7 @@ import numpy as np
 from PIL import Image
 
 from pipeline.io.reader import LoadedVideo
+from pipeline.store.names import replaced
 
 GAP = 2  # pixels of black between panels and rows
 
@@ -90,16 +91,19 @@ def write_preview(video: LoadedVideo, out_dir: Path, rows: int = 6, animation: L
         sheet_rows.append(frame_panel(frame["rgb"], frame["depth"], frame["panoptic"], limits, f"t={index}"))
     sheet = np.concatenate([np.pad(r, ((0, GAP), (0, 0), (0, 0))) for r in sheet_rows], axis=0)[:-GAP]
     sheet_path = out_dir / f"{video.name}.png"
-    Image.fromarray(sheet).save(sheet_path, optimize=True)
+    with replaced(sheet_path) as temporary:  # a new file: never written into one it does not own (a hard link)
+        Image.fromarray(sheet).save(temporary, format="PNG", optimize=True)
     step = max(1, -(-video.frames // max_animation_frames))
     panels = [frame_panel(f["rgb"], f["depth"], f["panoptic"], limits)
               for f in (video.frame(t) for t in range(0, video.frames, step))]
     animation_path = out_dir / f"{video.name}.{animation}"
-    if animation == "gif":
-        images = [Image.fromarray(p) for p in panels]
-        images[0].save(animation_path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
-    else:
-        _write_mp4(animation_path, panels, fps)
+    with replaced(animation_path) as temporary:
+        if animation == "gif":
+            images = [Image.fromarray(p) for p in panels]
+            images[0].save(temporary, format="GIF", save_all=True, append_images=images[1:], duration=int(1000 / fps),
+                           loop=0)
+        else:
+            _write_mp4(temporary, panels, fps)
     return PreviewFiles(animation_path, sheet_path)
 
 

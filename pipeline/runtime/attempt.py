@@ -11,7 +11,6 @@ import socket
 import sys
 import time
 import traceback
-from pathlib import Path
 
 from pipeline.errors import error_text
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
@@ -33,7 +32,7 @@ def execute_unit(stage: Stage, run: RunFolder, unit: Unit, attempt: int) -> Unit
     retry = ray_retry_number()
     attempt += retry
     log_file = run.log_path(stage.name, unit.id)
-    logger, handler = _unit_logger(stage.name, unit.id, log_file)
+    logger, handler = _unit_logger(run, stage.name, unit.id)
     started = time.perf_counter()
     relative_log = str(log_file.relative_to(run.root))
     try:
@@ -97,7 +96,7 @@ def _ray_worker() -> object | None:
 
 def append_to_unit_log(run: RunFolder, stage: str, unit: str, message: str) -> None:
     """Add a line to a unit's log from the driver (e.g. why its earlier worker died)."""
-    logger, handler = _unit_logger(stage, unit, run.log_path(stage, unit))
+    logger, handler = _unit_logger(run, stage, unit)
     try:
         logger.warning("%s", message)
     finally:
@@ -105,11 +104,21 @@ def append_to_unit_log(run: RunFolder, stage: str, unit: str, message: str) -> N
         handler.close()
 
 
-def _unit_logger(stage: str, unit: str, path: Path) -> tuple[logging.Logger, logging.Handler]:
+class _UnitLogHandler(logging.StreamHandler):
+    """A unit's log file as the run folder opened it (through no link); closing the handler closes the file."""
+
+    def close(self) -> None:
+        try:
+            self.stream.close()
+        finally:
+            super().close()
+
+
+def _unit_logger(run: RunFolder, stage: str, unit: str) -> tuple[logging.Logger, logging.Handler]:
     logger = logging.getLogger(f"mvpd.unit.{stage}.{unit}")
     logger.setLevel(logging.INFO)
     logger.propagate = False
-    handler = logging.FileHandler(path, mode="a", encoding="utf-8")
+    handler = _UnitLogHandler(run.open_log(stage, unit))
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
     logger.addHandler(handler)
     return logger, handler

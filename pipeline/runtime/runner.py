@@ -44,6 +44,7 @@ def submit(job: Job, run: RunFolder, stages: list[str] | None = None, address: s
     line), after the run lock is released.
     """
     with stop_on_storage_failure(run.location):
+        run.check_links()
         with run.locked():
             run.save_job(job)
             return _run(job, run, stages or list(JOB_STAGES), False, address, observer, executor)
@@ -54,6 +55,7 @@ def rerun(run: RunFolder, stage: str, force: bool = False, address: str | None =
     """Run one stage of an existing run again: failed, missing, stale and damaged units, or all with `force`
     (storage failures as in `submit`)."""
     with stop_on_storage_failure(run.location):
+        run.check_links()
         with run.locked():
             return _run(run.job(), run, [stage], force, address, observer, executor)
 

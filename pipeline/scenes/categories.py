@@ -13,6 +13,7 @@ from importlib import resources
 
 STUFF_CATEGORIES = frozenset({1, 2, 17})
 VOID = 0
+MISC = 40  # mpcat40's catch-all: an instance whose raw name the table does not map
 
 
 @dataclass(frozen=True)

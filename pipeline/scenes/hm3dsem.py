@@ -24,56 +24,69 @@ import numpy as np
 
 from pipeline.scenes.categories import category_of
 from pipeline.scenes.glb import GlbMesh, read_glb, write_glb
-from pipeline.scenes.scans import to_world, transfer_face_labels, up_axis_transform
+from pipeline.scenes.scans import integer_field, to_world, transfer_face_labels, up_axis_transform
 from pipeline.scenes.scene import Scene, SceneError, SceneObject
 
 HEADER = "HM3D Semantic Annotations"
 VOID_COLOR = 0x000000
 SEMANTIC_TXT = ".semantic.txt"
 SEMANTIC_GLB = ".semantic.glb"
+HEX_DIGITS = set("0123456789abcdefABCDEF")
 
 
 # ----------------------------------------------------------------------------------------- reading
 
 
 def _looks_like_row(line: str) -> bool:
-    fields = next(csv.reader([line]), [])
-    if len(fields) != 4 or len(fields[1].strip()) != 6:
-        return False
     try:
-        int(fields[0]), int(fields[1], 16), int(fields[3])
-    except ValueError:
+        _row(Path(), 0, line)
+    except SceneError:
         return False
     return True
 
 
 def read_semantic_table(path: Path) -> dict[int, tuple[str, int]]:
-    """colour (0xRRGGBB) -> (raw name, region) from a `.semantic.txt`; errors name file:line."""
+    """colour (0xRRGGBB) -> (raw name, region) from a `.semantic.txt`; errors name file:line.
+
+    As habitat-sim's HM3DSemanticScene.cpp reads it: a header line, blank lines skipped, the name's quotes
+    dropped. It keys objects by the row's first field (the last of two rows wins); we fail naming both
+    lines when an instance id or a colour is listed twice, since either would merge two objects."""
     try:
-        lines = path.read_text(encoding="utf-8").splitlines()
+        lines = path.read_bytes().decode("utf-8-sig").splitlines()
     except FileNotFoundError:
         raise SceneError(f"{path}: missing semantic table; put the scene's .semantic.txt beside its .glb") from None
     except UnicodeDecodeError as error:
-        raise SceneError(f"{path}: not UTF-8 text ({error.reason}); re-download the file") from None
+        raise SceneError(f"{path}: not UTF-8 text ({error.reason} at byte {error.start}); re-download the file") from None
     table: dict[int, tuple[str, int]] = {}
+    seen: dict[str, dict[int, int]] = {"instance id": {}, "colour": {}}  # -> value -> line
     # The first line is a header ("HM3D Semantic Annotations"); a file without one starts with data.
     first = 1 if lines and not _looks_like_row(lines[0]) else 0
     for number, line in enumerate(lines[first:], start=first + 1):
         if not line.strip():
             continue
-        fields = next(csv.reader([line]))
-        try:
-            if len(fields) != 4 or len(fields[1].strip()) != 6:
-                raise ValueError("wrong field count")
-            int(fields[0])
-            color, region = int(fields[1].strip(), 16), int(fields[3])
-        except ValueError:
-            raise SceneError(f"{path}:{number}: expected `object_id,HEXCOLOR,\"raw name\",region_id`, got {line.strip()[:80]!r};"
-                             " fix or delete the line") from None
-        if color in table:
-            raise SceneError(f"{path}:{number}: colour {fields[1]} is listed twice; each object needs its own colour")
-        table[color] = (fields[2], region)
+        instance, color, name, region = _row(path, number, line)
+        for what, value in (("instance id", instance), ("colour", color)):
+            if value in seen[what]:
+                shown = f"{value:06X}" if what == "colour" else str(value)
+                raise SceneError(f"{path}:{number}: {what} {shown} is also on line {seen[what][value]}; each object "
+                                 "needs its own; fix or delete one line")
+            seen[what][value] = number
+        table[color] = (name, region)
     return table
+
+
+def _row(path: Path, number: int, line: str) -> tuple[int, int, str, int]:
+    """(instance id, colour, raw name, region) of one row; SceneError naming file:line when it is not one."""
+    try:
+        fields = next(csv.reader([line]))
+        if len(fields) != 4 or len(fields[1].strip()) != 6 or not set(fields[1].strip()) <= HEX_DIGITS:
+            raise ValueError("wrong field count or colour")
+        instance, color, region = int(fields[0]), int(fields[1].strip(), 16), int(fields[3])
+    except (ValueError, csv.Error):
+        raise SceneError(f"{path}:{number}: expected `object_id,HEXCOLOR,\"raw name\",region_id`, got {line.strip()[:80]!r};"
+                         " fix or delete the line") from None
+    integer_field(region, f"{path}:{number}: region_id", -1, 2**31 - 1)
+    return instance, color, fields[2], region
 
 
 def _face_colors(mesh: GlbMesh, path: Path) -> np.ndarray:

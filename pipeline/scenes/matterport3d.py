@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.scenes.ply import read_ply
-from pipeline.scenes.scans import (distinct_positive, labelled_faces, lookup, palette_vertex_colors, scan_scene,
-                                   transfer_face_labels)
+from pipeline.scenes.scans import (distinct_positive, instance_id, integer_field, labelled_faces, lookup,
+                                   palette_vertex_colors, scan_scene, transfer_face_labels)
 from pipeline.scenes.scene import Scene, SceneError, SceneObject
 
 HOUSE_SUFFIX = ".house"
@@ -49,38 +49,79 @@ def _name(field: str) -> str:
 
 
 def read_house(path: Path) -> House:
-    """Parse the C, O and E records of a `.house` file; SceneError naming file:line and field on bad data."""
+    """Parse the C, O and E records of a `.house` file; SceneError naming file:line and field on bad data.
+
+    Read as habitat-sim's Mp3dSemanticScene.cpp reads it: blank lines skipped, fields split on runs of
+    spaces, records other than C / O / E passed over, `O` category_index -1 (no category), region_index -1
+    (no region) and `E` object_index -1 (a segment of no object: void). Segment ids are large
+    (region_index * 1000000 + segment). Where habitat-sim keeps the last of two records with the same
+    index (C, O) or segment id (E), we fail naming both lines."""
     try:
-        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+        text = path.read_bytes().decode("utf-8-sig", errors="replace")
     except OSError as error:
         raise SceneError(f"{path}: cannot read ({error.strerror}); re-download the scan's house_segmentations") from None
+    if text.split("\n", 1)[0].split() == ["ASCII", "1.0"]:  # Matterport's mp.cpp: 1.0 has no C, O, E records
+        raise SceneError(f"{path}:1: an ASCII 1.0 .house holds no objects (categories, objects and segments came "
+                         "with 1.1); use the scan's v1.1 house_segmentations")
     house = House({}, {}, {})
-    records: list[tuple[int, list[str]]] = []
-    for number, line in enumerate(lines, start=1):
+    lines: dict[str, dict[int, int]] = {"C": {}, "O": {}, "E": {}}  # record kind -> key -> line number
+    references: list[tuple[int, str, int, int]] = []  # (line, kind, key, index it names): checked once all are read
+    for number, line in enumerate(text.splitlines(), start=1):
         fields = line.split()
-        try:
-            if fields[:1] == ["C"]:
-                house.categories[int(fields[1])] = (_name(fields[3]), int(fields[4]))
-            elif fields[:1] == ["O"]:
-                house.objects[int(fields[1])] = (int(fields[2]), int(fields[3]))
-                records.append((number, fields))
-            elif fields[:1] == ["E"]:
-                house.segment_objects[int(fields[3])] = int(fields[2])
-                records.append((number, fields))
-        except (IndexError, ValueError):
-            raise SceneError(f"{path}:{number}: cannot read the {fields[0]!r} record {line.strip()[:60]!r}; "
-                             "re-download the scan's house_segmentations") from None
+        kind = fields[0] if fields else ""
+        if kind not in lines:
+            continue
+        key, value, reference = _record(path, number, fields)
+        if key in lines[kind]:
+            raise SceneError(f"{path}:{number}: {_KEY_NAMES[kind]} {key} is also on line {lines[kind][key]}; "
+                             "each needs its own; re-download the scan's house_segmentations")
+        lines[kind][key] = number
+        getattr(house, _TABLES[kind])[key] = value
+        if reference >= 0:
+            references.append((number, kind, key, reference))
     if not house.objects or not house.segment_objects:
         raise SceneError(f"{path}: no `O` object or `E` segment records (an empty .house); "
                          "re-download the scan's house_segmentations")
-    for number, fields in records:
-        if fields[0] == "O" and int(fields[3]) >= 0 and int(fields[3]) not in house.categories:
-            raise SceneError(f"{path}:{number}: object {fields[1]} has category_index {fields[3]}, which no `C` record "
+    for number, kind, key, reference in references:
+        if kind == "O" and reference not in house.categories:
+            raise SceneError(f"{path}:{number}: object {key} has category_index {reference}, which no `C` record "
                              "lists; re-download the scan's house_segmentations")
-        if fields[0] == "E" and int(fields[2]) >= 0 and int(fields[2]) not in house.objects:
-            raise SceneError(f"{path}:{number}: segment {fields[3]} has object_index {fields[2]}, which no `O` record "
+        if kind == "E" and reference not in house.objects:
+            raise SceneError(f"{path}:{number}: segment {key} has object_index {reference}, which no `O` record "
                              "lists; re-download the scan's house_segmentations")
     return house
+
+
+_TABLES = {"C": "categories", "O": "objects", "E": "segment_objects"}
+_KEY_NAMES = {"C": "category_index", "O": "object_index", "E": "segment id"}
+INT32 = (-2**31, 2**31 - 1)
+INT64 = (-2**63, 2**63 - 1)
+
+
+def _record(path: Path, number: int, fields: list[str]) -> tuple[int, object, int]:
+    """(key, value, the index the record refers to or -1) of one C, O or E record; SceneError naming the line."""
+    kind = fields[0]
+
+    def number_at(position: int, name: str, low: int | None = None, high: int | None = None) -> int:
+        try:
+            value = int(fields[position])
+        except (IndexError, ValueError):
+            raise SceneError(f"{path}:{number}: cannot read the {kind!r} record's {name} in "
+                             f"{' '.join(fields)[:60]!r}; re-download the scan's house_segmentations") from None
+        where = f"{path}:{number}: {kind} {name}"
+        return instance_id(value, where) if low is None or high is None else integer_field(value, where, low, high)
+
+    if kind == "C":
+        if len(fields) < 4:
+            raise SceneError(f"{path}:{number}: the 'C' record {' '.join(fields)[:60]!r} has no category_mapping_name; "
+                             "re-download the scan's house_segmentations")
+        return number_at(1, "category_index", 0, INT32[1]), (_name(fields[3]), number_at(4, "mpcat40_index", 0, 41)), -1
+    if kind == "O":
+        index = number_at(1, "object_index")  # an instance id
+        category = number_at(3, "category_index", -1, INT32[1])
+        return index, (number_at(2, "region_index", -1, INT32[1]), category), category
+    object_index = -1 if fields[2:3] == ["-1"] else number_at(2, "object_index")  # -1: a segment of no object
+    return number_at(3, "id", *INT64), object_index, object_index
 
 
 def house_objects(house: House) -> dict[int, SceneObject]:

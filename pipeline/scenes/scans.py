@@ -42,14 +42,63 @@ def to_world(vertices: np.ndarray, transform: np.ndarray) -> np.ndarray:
     return (vertices.astype(np.float64) @ rotation.T + transform[:3, 3]).astype(np.float32)
 
 
+# objects.object_id = instance id + 1 is the panoptic id of a pixel, a uint32 (DESIGN.md), and 0 is void:
+# a dataset's instance ids must lie in 0 .. 2^32 - 2. Larger ids are refused, never wrapped.
+MAX_INSTANCE_ID = 2**32 - 2
+
+
 def read_json(path: Path, what: str) -> Any:
-    """A dataset's JSON file; SceneError naming the file when it is missing or not JSON."""
+    """A dataset's JSON file; SceneError naming the file when it is missing or not JSON.
+
+    Nesting deep enough to exhaust Python's recursion (a corrupt or hostile file) is refused the same way."""
     if not path.is_file():
         raise SceneError(f"{path}: missing; {what}")
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise SceneError(f"{path}: not valid JSON ({error}); re-download the file") from None
+        return json.loads(path.read_bytes().decode("utf-8-sig"))  # a byte-order mark (Windows tools) is not JSON
+    except UnicodeDecodeError as error:
+        raise SceneError(f"{path}: not UTF-8 text (byte {error.start}); re-download the file") from None
+    except json.JSONDecodeError as error:
+        raise SceneError(f"{path}:{error.lineno}: not valid JSON ({error.msg}, column {error.colno}); "
+                         "re-download the file") from None
+    except RecursionError:
+        raise SceneError(f"{path}: JSON nested too deeply to be a dataset file; re-download the file") from None
+
+
+def integer_field(value: Any, where: str, low: int, high: int) -> int:
+    """`value` as an int in [low, high]; SceneError naming `where` (`<file>:<field>`) otherwise.
+
+    JSON integers written as floats (3.0) are accepted; fractions, booleans, strings and ids outside the
+    range are refused rather than truncated or wrapped."""
+    number = int(value) if isinstance(value, float) and value.is_integer() else value
+    if isinstance(number, bool) or not isinstance(number, int):
+        raise SceneError(f"{where}: {_shown(value)} is not an integer; fix the file or re-download it")
+    if not low <= number <= high:
+        raise SceneError(f"{where}: {_shown(value)} is outside {low}..{high}; fix the file or re-download it")
+    return number
+
+
+def instance_id(value: Any, where: str) -> int:
+    """A dataset instance id that fits objects.object_id = id + 1 (uint32): 0 .. 2^32 - 2, else SceneError."""
+    if isinstance(value, int) and not isinstance(value, bool) and not 0 <= value <= MAX_INSTANCE_ID:
+        raise SceneError(f"{where}: instance id {_shown(value)} is outside 0..{MAX_INSTANCE_ID} (object id = instance id "
+                         "+ 1 is a uint32 panoptic id); renumber the instances")
+    return integer_field(value, where, 0, MAX_INSTANCE_ID)
+
+
+def _shown(value: Any) -> str:
+    """A short repr of a value for a one-line message."""
+    text = repr(value)  # repr escapes newlines: the message stays one line
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def first_repeat(keys: list[Any]) -> tuple[int, int] | None:
+    """(first index, repeating index) of the first key that occurs twice in `keys`, or None."""
+    seen: dict[Any, int] = {}
+    for index, key in enumerate(keys):
+        if key in seen:
+            return seen[key], index
+        seen[key] = index
+    return None
 
 
 def faces_from_vertex_labels(vertex_labels: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -115,6 +164,8 @@ def scan_scene(scene_id: str, source: str, path: Path, vertices: np.ndarray, fac
     vertices = np.asarray(vertices, np.float32)
     if len(faces) == 0:
         raise SceneError(f"{path}: the mesh is empty (0 triangles); re-download the scene")
+    if len(face_ids) and int(np.max(face_ids)) > MAX_INSTANCE_ID + 1:  # readers refuse such ids first; never wrap
+        raise SceneError(f"{path}: object id {int(np.max(face_ids))} does not fit a uint32 panoptic id; renumber the instances")
     keep = non_degenerate(vertices, faces)
     dropped = int((~keep).sum())
     if dropped + short_faces:

@@ -72,10 +72,10 @@ def object_rows(scene: Scene) -> list[dict[str, Any]]:
     order = np.argsort(ids, kind="stable")
     sorted_ids = ids[order]
     areas = scene.face_areas()[order]
-    corners = scene.vertices[scene.faces[order]].astype(np.float64)  # (F, 3, 3)
+    corners = scene.vertices[scene.faces[order]]  # (F, 3, 3) in the vertices' type: min / max need no float64 copy
     unique, starts, counts = np.unique(sorted_ids, return_index=True, return_counts=True)
-    low = np.minimum.reduceat(corners.min(axis=1), starts, axis=0)
-    high = np.maximum.reduceat(corners.max(axis=1), starts, axis=0)
+    low = np.minimum.reduceat(corners.min(axis=1), starts, axis=0).astype(np.float64)
+    high = np.maximum.reduceat(corners.max(axis=1), starts, axis=0).astype(np.float64)
     area = np.add.reduceat(areas, starts)
     position = {int(object_id): k for k, object_id in enumerate(unique)}
     rows = []

@@ -31,6 +31,9 @@ LOG = logging.getLogger(__name__)
 MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
 LABEL_PROPERTIES = ("object_id", "instance", "label", "segment")
 GLB_MAGIC = b"glTF"
+# What trimesh's loaders raise on files they cannot read (each becomes one line naming the file).
+TRIMESH_ERRORS = (ValueError, KeyError, IndexError, TypeError, AttributeError, UnicodeDecodeError, OSError,
+                  NotImplementedError, struct.error, OverflowError, ZeroDivisionError)
 # Required glTF extensions that trimesh decodes or that change nothing this project reads.
 GLTF_EXTENSIONS = frozenset({"KHR_materials_unlit", "KHR_texture_transform", "KHR_materials_pbrSpecularGlossiness"})
 
@@ -83,14 +86,18 @@ def _load_trimesh(path: Path, obj: ObjFaces | None = None) -> trimesh.Scene:
     try:
         # One geometry per material keeps OBJ `usemtl` groups apart; process=False keeps vertex order.
         return trimesh.load_scene(str(path), process=False, resolver=resolver)
-    except (ValueError, KeyError, IndexError, TypeError, AttributeError, UnicodeDecodeError, OSError,
-            NotImplementedError, struct.error) as error:
+    except TRIMESH_ERRORS as error:
         where = _first_bad_obj_line(path) if path.suffix.lower() == ".obj" else None
         if where is not None:
-            raise SceneError(f"{path}:{where[0]}: cannot read {where[1]!r} line; fix the line") from None
+            raise SceneError(f"{path}:{where[0]}: {where[1]}; fix the line") from None
         if path.suffix.lower() == ".glb":
-            raise _corrupt_glb(path, f"{type(error).__name__}: {error}") from None
-        raise SceneError(f"{path}: trimesh cannot read the mesh ({type(error).__name__}: {error}); re-export the file") from None
+            raise _corrupt_glb(path, _one_line(error)) from None
+        raise SceneError(f"{path}: trimesh cannot read the mesh ({_one_line(error)}); re-export the file") from None
+
+
+def _one_line(error: BaseException) -> str:
+    """An exception of trimesh's as a short single line (its messages may span lines)."""
+    return f"{type(error).__name__}: {' '.join(str(error).split())[:120]}"
 
 
 def _stand_in_materials(path: Path, names: object) -> object:
@@ -150,16 +157,34 @@ def check_gltf(path: Path) -> None:
 
 
 def _first_bad_obj_line(path: Path) -> tuple[int, str] | None:
-    """(line number, keyword) of the first `v` / `vt` / `vn` line whose numbers do not parse."""
-    with path.open(encoding="utf-8", errors="replace") as handle:
+    """(line number, what is wrong) of the first `v` / `vt` / `vn` line whose numbers do not parse, or
+    `f` line with a corner that is no vertex: asked only once trimesh has failed, to say where."""
+    vertices = sum(1 for line in path.open("rb") if line.split()[:1] == [b"v"])
+    with path.open(encoding="utf-8", errors="backslashreplace") as handle:
         for number, line in enumerate(handle, start=1):
             fields = line.split()
             if fields and fields[0] in ("v", "vt", "vn"):
                 try:
                     [float(x) for x in fields[1:]]
                 except ValueError:
-                    return number, fields[0]
+                    return number, f"cannot read {fields[0]!r} line"
+            if fields and fields[0] == "f":
+                corner = next((c for c in fields[1:] if not _is_corner(c, vertices)), None)
+                if corner is not None:
+                    return number, (f"face corner {corner[:30]!r} is not a vertex index (1..{vertices} or -{vertices}..-1) "
+                                    "with optional /texture/normal indices")
     return None
+
+
+def _is_corner(text: str, vertices: int) -> bool:
+    """`v`, `v/vt`, `v//vn` or `v/vt/vn` with v a vertex of the file."""
+    parts = text.split("/")
+    try:
+        index = int(parts[0])
+        [int(p) for p in parts[1:] if p]
+    except ValueError:
+        return False
+    return 1 <= abs(index) <= vertices and len(parts) <= 3
 
 
 def _image_rgb(image: object) -> np.ndarray | None:
@@ -252,12 +277,16 @@ def _scan_obj_faces(path: Path) -> ObjFaces:
     groups: dict[str, list[str]] = {}
     group, material, short, any_group, missing = "", "", 0, False, ""
     with path.open(encoding="utf-8", errors="replace") as handle:
-        for line in handle:
+        for number, line in enumerate(handle, start=1):
             head = line[:7]
             if head.startswith("mtllib") and not missing and not (path.parent / line[6:].strip()).is_file():
                 missing = line[6:].strip()
             if head.startswith(("f ", "f\t")):
-                corners = len(line.split()) - 1
+                fields = line.split()
+                if "0" in fields or " 0/" in line or "\t0/" in line:  # trimesh would take 0 as the last vertex
+                    raise SceneError(f"{path}:{number}: face corner 0 is no vertex (OBJ counts from 1, or back from -1); "
+                                     "fix the line")
+                corners = len(fields) - 1
                 if corners < 3:
                     short += 1
                 else:
@@ -275,6 +304,8 @@ def read_parts(path: Path) -> tuple[list[MeshPart], int]:
         raise SceneError(f"{path}: no such file; check the scene folder holds it")
     if path.suffix.lower() == ".ply":
         part, short_faces = _ply_part(path)
+        if not len(part.faces):
+            raise _empty_mesh(path)
         return [part], short_faces
     obj = _scan_obj_faces(path) if path.suffix.lower() == ".obj" else None
     scene = _load_trimesh(path, obj)
@@ -304,8 +335,12 @@ def read_parts(path: Path) -> tuple[list[MeshPart], int]:
         LOG.warning("%s: %d materials have another triangle count than their `f` lines give (e.g. %s); their `o` / `g` "
                     "names are ignored and their material names label them", path, len(ungrouped), ", ".join(map(repr, ungrouped[:3])))
     if not parts:
-        raise SceneError(f"{path}: the mesh is empty (0 triangles); check the file was exported with geometry")
+        raise _empty_mesh(path)
     return parts, (obj.short_faces if obj is not None else 0)
+
+
+def _empty_mesh(path: Path) -> SceneError:
+    return SceneError(f"{path}: the mesh is empty (0 triangles); check the file was exported with geometry")
 
 
 def _part_name(path: Path, geometry: object, node: str, obj: ObjFaces | None) -> str:

@@ -22,10 +22,10 @@ import json
 import logging
 import os
 import shutil
-import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Iterable
+from stat import S_ISLNK, S_ISREG
+from typing import Any, Callable, Iterable
 
 import google_crc32c
 import pyarrow as pa
@@ -33,10 +33,12 @@ import pyarrow.parquet as pq
 
 from pipeline.errors import error_text
 from pipeline.store.lock import LOCK_KEY, RemoteRunLock, RunLock, local_holder, parse_holder
-from pipeline.store.marker_index import FsspecMarkerFolder, LocalMarkerFolder, MarkerFolder
+from pipeline.store.marker_index import MAX_MARKER_BYTES, FsspecMarkerFolder, LocalMarkerFolder, MarkerFolder
 from pipeline.store.markers import Damage, Marker, OutputFile, file_checksum, marker_text, parse_marker
-from pipeline.store.names import (ATTEMPTS, DATASET_INDEX, JOB_FILE, STATE, atomic_write_text, is_plain_name,
-                                  is_run_path)
+import pipeline.store.links as links
+from pipeline.store.links import FolderCheck
+from pipeline.store.names import (ATTEMPTS, DATASET_INDEX, JOB_FILE, STATE, RunFolderError, atomic_write_text,
+                                  is_plain_name, is_run_path)
 from pipeline.store.remote import RunStore, StoreError, attempt_id
 
 log = logging.getLogger(__name__)
@@ -46,10 +48,6 @@ DAMAGE_NOTES = "_damage.notes"
 # Damage notes this process found but could not write (a read-only run folder), by note path: so that the
 # rest of the command (`status --verify` shows the table after verifying) still sees what it found.
 _UNWRITTEN_NOTES: dict[str, dict] = {}
-
-
-class RunFolderError(ValueError):
-    """A path that is not a usable run folder; the message says why and what to do."""
 
 
 def _note(marker: Marker, problems: list[Damage]) -> dict:
@@ -92,14 +90,19 @@ class LocalFiles:
                                  "choose a writable place (--run-dir)") from None
 
     def is_run(self) -> bool:
-        return (self.root / JOB_FILE).is_file() or (self.root / STATE).is_dir()
+        """A run folder, or one `prepare` began (its `_state` folder is made first)."""
+        return os.path.lexists(self.root / STATE)
 
     def check_run(self) -> None:
-        if not (self.root / JOB_FILE).is_file():
+        if not _is_file(self.root / JOB_FILE):
             raise RunFolderError(f"{self.root}: not a run folder (no {JOB_FILE}); give the folder `mvpd submit` wrote")
 
     def save_job(self, text: str) -> None:
-        atomic_write_text(self.root / JOB_FILE, text)
+        links.make_folder(self.root, STATE)  # what makes a folder a run (`is_run_folder`), before its job file
+        links.write_file(self.root, JOB_FILE, text.encode("utf-8"))
+
+    def read_job(self) -> str:
+        return links.read_bytes(self.root, JOB_FILE).decode("utf-8")
 
     # ---------------------------------------------------------------------------------- markers
     def marker_folder(self, stage: str) -> MarkerFolder:
@@ -107,54 +110,67 @@ class LocalFiles:
 
     def read_marker(self, stage: str, unit: str) -> Marker | None:
         try:
-            return parse_marker((self.root / STATE / stage / f"{unit}.json").read_text(encoding="utf-8"), f"{unit}.json")
-        except (FileNotFoundError, UnicodeDecodeError):
+            data = links.read_bytes(self.root, f"{STATE}/{stage}/{unit}.json", MAX_MARKER_BYTES + 1)
+            text = data.decode("utf-8")
+        except (OSError, UnicodeDecodeError, RunFolderError):  # missing, a folder, a link: no proof of anything
             return None
+        return parse_marker(text, f"{unit}.json") if len(data) <= MAX_MARKER_BYTES else None
 
     def write_marker(self, marker: Marker) -> None:
         """Index the marker's datasets, then write the marker atomically (the commit point of the unit)."""
         for dataset in sorted({f.path.split("/")[0] for f in marker.files if f.path.endswith(".parquet")}):
-            entry = self.root / STATE / DATASET_INDEX / dataset / marker.stage
-            if not entry.exists():
-                entry.parent.mkdir(parents=True, exist_ok=True)
-                entry.touch()
+            entry = f"{STATE}/{DATASET_INDEX}/{dataset}/{marker.stage}"
+            if not os.path.lexists(self.root / entry):
+                links.write_file(self.root, entry, b"")
         self._clear_note(marker.stage, marker.unit)
-        atomic_write_text(self.root / STATE / marker.stage / f"{marker.unit}.json", marker_text(marker))
+        links.write_file(self.root, f"{STATE}/{marker.stage}/{marker.unit}.json", marker_text(marker).encode("utf-8"))
 
     def drop_marker(self, stage: str, unit: str) -> None:
-        (self.root / STATE / stage / f"{unit}.json").unlink(missing_ok=True)
+        links.remove(self.root, f"{STATE}/{stage}/{unit}.json")
         self._clear_note(stage, unit)
 
     def stages_writing(self, dataset: str) -> list[str]:
-        folder = self.root / STATE / DATASET_INDEX / dataset
-        return sorted(p.name for p in folder.iterdir() if is_plain_name(p.name)) if folder.is_dir() else []
+        return sorted(name for name, _ in links.entries(self.root, f"{STATE}/{DATASET_INDEX}/{dataset}")
+                      if is_plain_name(name))
 
     def marked_stages(self) -> list[str]:
-        folder = self.root / STATE
-        if not folder.is_dir():
-            return []
-        return sorted(p.name for p in folder.iterdir() if p.is_dir() and p.name != DATASET_INDEX and is_plain_name(p.name))
+        return sorted(name for name, is_folder in links.entries(self.root, STATE)
+                      if is_folder and name != DATASET_INDEX and is_plain_name(name))
 
     def datasets(self) -> list[str]:
-        folder = self.root / STATE / DATASET_INDEX
-        return sorted(p.name for p in folder.iterdir() if p.is_dir() and any(p.iterdir())) if folder.is_dir() else []
+        return sorted(name for name, is_folder in links.entries(self.root, f"{STATE}/{DATASET_INDEX}")
+                      if is_folder and links.entries(self.root, f"{STATE}/{DATASET_INDEX}/{name}"))
 
     # ----------------------------------------------------------------------------------- damage
-    def check(self, marker: Marker, verify: bool) -> list[Damage]:
-        """Missing or resized files (a stat each); with `verify`, also a checksum mismatch."""
-        # A full-scale render marker names ~40 files and a run 18,000 markers: one os.stat on a joined
+    def check(self, marker: Marker, verify: bool, folders: FolderCheck | None = None,
+              deep: bool = True) -> list[Damage]:
+        """Missing, resized or linked files (an lstat each) and outputs reached through a link (an lstat per
+        folder and pass `folders`); with `verify`, also a checksum mismatch. `deep` also checks every folder
+        inside a Zarr store (a reader about to open it; `status` checks the store's own folder: a full-scale
+        store nests ~80 folders for its ~40 files). Nothing is followed through a link (`pipeline.store.links`)."""
+        # A full-scale render marker names ~40 files and a run 18,000 markers: one os.lstat on a joined
         # string per file, no Path object (a Path per file tripled the cost of `mvpd status`).
-        prefix = os.path.join(os.fspath(self.root), "")
-        stat = os.stat
-        found = []
+        folders = folders or FolderCheck(self.root)
+        prefix, lstat, folder_problem, real = folders.prefix, os.lstat, folders.problem, folders.real
         # Without `verify` only paths and sizes are needed: a marker from the index gives them as columns.
-        entries = (((f.path, f.size, f.crc32c) for f in marker.files) if verify
-                   else ((path, size, "") for path, size in marker.file_sizes()))
+        entries = ([(f.path, f.size, f.crc32c) for f in marker.files] if verify
+                   else [(path, size, "") for path, size in marker.file_sizes()])
+        blocked = _blocked_outputs(marker.outputs, {entry[0] for entry in entries}, folder_problem)
+        found = []
         for path, expected, crc32c in entries:
-            try:
-                size = stat(prefix + path).st_size
-            except (FileNotFoundError, NotADirectoryError):  # NotADirectory: a file where a folder should be
-                found.append(Damage(marker.stage, marker.unit, path, "is missing"))
+            problem = next((p for o, p in blocked.items() if path.startswith(o)), None) if blocked else None
+            if deep and problem is None:
+                parent = path.rpartition("/")[0]
+                problem = None if parent in real else folder_problem(parent)
+            if problem is None:
+                try:
+                    info = lstat(prefix + path)
+                    size = info.st_size
+                    problem = "is a symbolic link" if S_ISLNK(info.st_mode) else None
+                except OSError:  # missing, or a loop or a file where a folder should be
+                    problem = "is missing"
+            if problem is not None:
+                found.append(Damage(marker.stage, marker.unit, path, problem))
                 continue
             if size != expected:
                 found.append(Damage(marker.stage, marker.unit, path, f"has {size} bytes, the marker says {expected}"))
@@ -167,15 +183,15 @@ class LocalFiles:
         return [self._recorded(marker) for marker in markers]
 
     def _recorded(self, marker: Marker) -> list[Damage]:
-        path = self._note_path(marker.stage, marker.unit)
-        where = path.relative_to(self.root).as_posix()
-        note = _UNWRITTEN_NOTES.get(str(path))
+        where = self._note_path(marker.stage, marker.unit)
+        note = _UNWRITTEN_NOTES.get(str(self.root / where))
         try:
             if note is None:
-                note = json.loads(path.read_text(encoding="utf-8"))
+                os.lstat(self.root / where)  # most units have no note: one syscall, as reading one was
+                note = json.loads(links.read_bytes(self.root, where))
         except FileNotFoundError:
             return []
-        except ValueError:
+        except (ValueError, RecursionError, OSError, RunFolderError):  # bad JSON, a folder, a link
             return _unreadable_note(marker, where)
         return _noted_damage(marker, note, where)
 
@@ -186,24 +202,26 @@ class LocalFiles:
         for marker, problems in damaged:
             path = self._note_path(stage, marker.unit)
             try:
-                atomic_write_text(path, json.dumps(_note(marker, problems), indent=1))
-            except OSError as error:
-                _UNWRITTEN_NOTES[str(path)] = _note(marker, problems)
+                links.write_file(self.root, path, json.dumps(_note(marker, problems), indent=1).encode("utf-8"))
+            except (OSError, RunFolderError) as error:
+                _UNWRITTEN_NOTES[str(self.root / path)] = _note(marker, problems)
                 log.warning("cannot record damage of %s/%s: %s", stage, marker.unit, error)
         for unit in cleared:
             try:
                 self._clear_note(stage, unit)
-            except OSError as error:
+            except (OSError, RunFolderError) as error:
                 log.warning("cannot clear the damage note of %s/%s: %s", stage, unit, error)
 
-    def _note_path(self, stage: str, unit: str) -> Path:
-        return self.root / STATE / stage / f"{unit}{DAMAGE_SUFFIX}"
+    @staticmethod
+    def _note_path(stage: str, unit: str) -> str:
+        return f"{STATE}/{stage}/{unit}{DAMAGE_SUFFIX}"
 
     def _clear_note(self, stage: str, unit: str) -> None:
         path = self._note_path(stage, unit)
-        _UNWRITTEN_NOTES.pop(str(path), None)
-        if path.exists():  # never unlink a note that is not there: on a read-only file system that fails (EROFS)
-            path.unlink(missing_ok=True)
+        _UNWRITTEN_NOTES.pop(str(self.root / path), None)
+        # Never unlink a note that is not there: on a read-only file system that fails (EROFS).
+        if os.path.lexists(self.root / path):
+            links.remove(self.root, path)
 
     # -------------------------------------------------------------------------- committed files
     def path_of(self, marker: Marker, relative: str) -> Path:
@@ -220,12 +238,11 @@ class LocalFiles:
         Outputs of the unit's previous commit that this attempt did not produce are removed, so a
         rerun never leaves stale rows or videos behind.
         """
+        staged = staging.relative_to(self.root).as_posix()
         for relative in outputs:
-            target = self.inside(relative)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            _replace(staging / relative, target)
+            links.replace(self.root, f"{staged}/{relative}", self.inside(relative))
         self._remove(sorted(set(previous.outputs if previous else []) - set(outputs)))
-        shutil.rmtree(staging, ignore_errors=True)
+        links.remove(self.root, staged)
         return {}
 
     def forget(self, previous: Marker, keys: dict[str, str]) -> None:
@@ -237,21 +254,16 @@ class LocalFiles:
 
     def _remove(self, relatives: Iterable[str]) -> None:
         for relative in relatives:
-            path = self.inside(relative)
-            if path.is_dir():
-                shutil.rmtree(path, ignore_errors=True)
-            else:
-                path.unlink(missing_ok=True)
+            links.remove(self.root, self.inside(relative))
 
-    def inside(self, relative: str) -> Path:
-        """The local path of an output of the run, after checking that it stays inside the run: a plain
-        relative path (`is_run_path`) whose folders are no links leading elsewhere. Markers are checked when
-        read; this is the last guard before anything is moved or deleted (RunFolderError otherwise)."""
-        path = self.root / relative
-        if not is_run_path(relative) or not path.parent.resolve().is_relative_to(self.root.resolve()):
+    def inside(self, relative: str) -> str:
+        """`relative`, after checking that it is a plain relative path of an output inside the run
+        (`is_run_path`). Markers are checked when read; this is the last guard of the name before anything is
+        moved or deleted (RunFolderError otherwise); `links` then follows no link on the way."""
+        if not is_run_path(relative):
             raise RunFolderError(f"{self.root}: refusing to write or delete {relative!r}, which is not a plain "
                                  "relative path inside the run")
-        return path
+        return relative
 
     def upload_log(self, stage: str, unit: str, local: Path) -> None:
         """Logs are written in place."""
@@ -483,15 +495,23 @@ def _read(path: Path) -> str | None:
         return None
 
 
-def _replace(source: Path, target: Path) -> None:
-    if source.is_dir():
-        # A directory cannot be replaced atomically over a non-empty one: move the old one aside first.
-        if target.exists():
-            aside = target.with_name(f".{target.name}.old-{os.getpid()}-{time.monotonic_ns()}")
-            os.replace(target, aside)
-            os.replace(source, target)
-            shutil.rmtree(aside, ignore_errors=True)
-        else:
-            os.replace(source, target)
-    else:
-        os.replace(source, target)
+def _blocked_outputs(outputs: list[str], files: set[str],
+                     folder_problem: Callable[[str], str | None]) -> dict[str, str]:
+    """Output (a file, or a folder such as a Zarr store, with a '/' after it) -> why it is not reached through
+    real folders only, for the outputs that are not."""
+    blocked = {}
+    for output in outputs:
+        is_file = output in files
+        problem = folder_problem(output.rpartition("/")[0] if is_file else output)
+        if problem is not None:
+            blocked[output if is_file else f"{output}/"] = problem
+    return blocked
+
+
+def _is_file(path: Path) -> bool:
+    """True when `path` is a regular file itself (a link is not followed)."""
+    try:
+        return S_ISREG(os.lstat(path).st_mode)
+    except OSError:
+        return False
+

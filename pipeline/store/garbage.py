@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import logging
-import shutil
 import socket
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +23,7 @@ from typing import Callable
 
 import psutil
 
+import pipeline.store.links as links
 from pipeline.store.names import ATTEMPTS, STAGING, STATE
 from pipeline.store.remote import RunStore
 from pipeline.store.run_folder import RunFolder
@@ -55,10 +55,11 @@ class GarbageReport:
 def collect_garbage(run: RunFolder, dry_run: bool = False, on_progress: GarbageProgress | None = None) -> GarbageReport:
     """Delete what dead attempts left behind in `run` (or only report it with `dry_run`), holding the run lock."""
     report = GarbageReport(dry_run=dry_run)
+    run.check_links()
     with run.locked():
         if run.store is not None:
             _collect_store(run.store, report, on_progress, run.check_fence)
-        _collect_staging(run.root / STAGING, report, run.check_fence)
+        _collect_staging(run.root, report, run.check_fence)
     return report
 
 
@@ -116,19 +117,24 @@ def _collect_store(store: RunStore, report: GarbageReport, on_progress: GarbageP
              len(report.attempts))
 
 
-def _collect_staging(staging: Path, report: GarbageReport, check_fence: Callable[[], None]) -> None:
-    """Staging folders `_staging/<stage>/<unit>.<host>.<pid>` of attempts that are over."""
-    if not staging.is_dir():
-        return
-    for folder in sorted(p for stage in staging.iterdir() if stage.is_dir() for p in stage.iterdir() if p.is_dir()):
-        owner, _, pid = folder.name.rpartition(".")  # <unit>.<host>.<pid>
-        if _alive_here(owner, pid):
-            report.kept_alive.append(folder.relative_to(staging.parent).as_posix())
+def _collect_staging(root: Path, report: GarbageReport, check_fence: Callable[[], None]) -> None:
+    """Staging folders `_staging/<stage>/<unit>.<host>.<pid>` of attempts that are over: listed and deleted
+    through no link (`pipeline.store.links`; the driver refused a run with links before, this is the guard)."""
+    for stage, stage_is_folder in sorted(links.entries(root, STAGING)):
+        if not stage_is_folder:
             continue
-        report.staging.append(folder.relative_to(staging.parent).as_posix())
-        if not report.dry_run:
-            check_fence()
-            shutil.rmtree(folder, ignore_errors=True)
+        for name, is_folder in sorted(links.entries(root, f"{STAGING}/{stage}")):
+            if not is_folder:
+                continue
+            relative = f"{STAGING}/{stage}/{name}"
+            owner, _, pid = name.rpartition(".")  # <unit>.<host>.<pid>
+            if _alive_here(owner, pid):
+                report.kept_alive.append(relative)
+                continue
+            report.staging.append(relative)
+            if not report.dry_run:
+                check_fence()
+                links.remove(root, relative)
 
 
 def _alive_here(owner: str, pid: str) -> bool:

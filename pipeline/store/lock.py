@@ -28,6 +28,7 @@ from __future__ import annotations
 import fcntl
 import json
 import logging
+import math
 import os
 import socket
 import threading
@@ -39,6 +40,7 @@ from typing import TYPE_CHECKING, Iterator
 import psutil
 
 from pipeline.errors import error_text
+import pipeline.store.links as links
 from pipeline.store.failures import RunStoppedError
 from pipeline.store.names import STATE
 
@@ -53,6 +55,8 @@ _LAPSED = "no heartbeat reached the run lock for {:.0f} s"
 # First wait before a failed heartbeat is tried again; doubled on each failure, at most HEARTBEAT_SECONDS.
 RETRY_SECONDS = 1.0
 LOCK_KEY = f"{STATE}/lock.json"
+# A lock record is ~200 bytes; more is not read (a lock file of gigabytes is unreadable, not a memory bill).
+_MAX_LOCK_BYTES = 64 * 1024
 
 
 def lease_seconds() -> float:
@@ -153,13 +157,15 @@ class RunLock(Lease):
 
     def __init__(self, run_root: Path):
         super().__init__()
-        self.path = Path(run_root) / LOCK_KEY
-        self.where = str(Path(run_root))
+        self.root = Path(run_root)
+        self.path = self.root / LOCK_KEY
+        self.where = str(self.root)
         self._guard = self.path.with_name(".lock.guard")
 
     def __enter__(self) -> "RunLock":
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.root.mkdir(parents=True, exist_ok=True)  # the folder named (links above it are the user's)
+            links.make_folder(self.root, STATE)  # `_state` a link: RunLinkError, nothing written through it
             self._take()
         except OSError as error:
             raise RunFolderNotWritableError(f"{self.path.parent.parent}: cannot create the run lock "
@@ -195,7 +201,7 @@ class RunLock(Lease):
     @contextmanager
     def _guarded(self) -> Iterator[None]:
         """Hold an exclusive flock on the guard file (taken only for the few file operations, never the run)."""
-        descriptor = os.open(self._guard, os.O_CREAT | os.O_RDWR, 0o644)
+        descriptor = os.open(self._guard, os.O_CREAT | os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
         try:
             fcntl.flock(descriptor, fcntl.LOCK_EX)
             yield
@@ -208,7 +214,7 @@ class RunLock(Lease):
     def _try_create(self) -> bool:
         """Publish the lock with its whole content in one step; False when a lock already exists."""
         temporary = self.path.with_name(f".lock.{socket.gethostname()}.{os.getpid()}.tmp")
-        temporary.write_text(json.dumps(self._record()))
+        _write_new(temporary, json.dumps(self._record()))
         try:
             os.link(temporary, self.path)  # fails, never replaces, when the name exists
         except FileExistsError:
@@ -225,18 +231,26 @@ class RunLock(Lease):
             if not self._is_mine(self._holder()):
                 return False  # taken over (judged dead from another host): never overwrite the new owner
             temporary = self.path.with_name(f".lock.{os.getpid()}.beat.tmp")
-            temporary.write_text(json.dumps(self._record()))
+            _write_new(temporary, json.dumps(self._record()))
             os.replace(temporary, self.path)
             return True
 
 
+def _write_new(path: Path, text: str) -> None:
+    """Write a private temporary file of the lock; a link at its name is replaced, never followed."""
+    path.unlink(missing_ok=True)
+    with open(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644), "w") as out:
+        out.write(text)
+
+
 def local_holder(path: Path) -> dict | None:
-    """The record of a local lock file; None when there is none or it is unreadable."""
+    """The record of a local lock file; None when there is none or it is unreadable (a folder, a link, bytes
+    that are no JSON object: any bytes give a record or None)."""
     try:
-        data = json.loads(path.read_text())
-    except (FileNotFoundError, ValueError, UnicodeDecodeError):
+        with open(os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC), "rb") as handle:
+            return parse_holder(handle.read(_MAX_LOCK_BYTES))
+    except OSError:
         return None
-    return data if isinstance(data, dict) else None
 
 
 class RemoteRunLock(Lease):
@@ -330,9 +344,24 @@ def parse_holder(data: bytes) -> dict | None:
     """The record of a lock object's bytes; None when unreadable."""
     try:
         holder = json.loads(data)
-    except ValueError:
+    except (ValueError, RecursionError):  # not JSON, or `[` nested too deep for the parser
         return None
-    return holder if isinstance(holder, dict) else None
+    return holder if isinstance(holder, dict) and _well_typed(holder) else None
+
+
+def _well_typed(holder: dict) -> bool:
+    """True when the record's fields, where present, have the types a lock of ours writes (a forged or damaged
+    lock is unreadable, judged by its age, rather than crashing the reader)."""
+    def number(key: str, optional: bool = False) -> bool:
+        value = holder.get(key)
+        return (value is None and (optional or key not in holder)) or (
+            isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value))
+
+    pid = holder.get("pid", 1)
+    return (isinstance(holder.get("host", ""), str) and isinstance(holder.get("owner", ""), str)
+            and isinstance(pid, int) and not isinstance(pid, bool) and 0 < pid < 2**31
+            and number("started") and number("heartbeat") and number("process_started", optional=True)
+            and abs(holder.get("started") or 0) < 1e11)
 
 
 def _record(started: float) -> dict:

@@ -35,13 +35,20 @@ import pyarrow.parquet as pq
 
 from pipeline.errors import error_text
 from pipeline.store.markers import ColumnarManifest, Marker, marker_problem, parse_marker
-from pipeline.store.names import RUN_PATH, STATE
+import pipeline.store.links as links
+from pipeline.store.names import RUN_PATH, STATE, RunFolderError
 
 log = logging.getLogger(__name__)
 
 INDEX_NAME = "_index.parquet"
 INDEX_VERSION = 1
 MARKER_SUFFIX = ".json"
+_READ = os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC
+# What reading markers and the index may cost at most (a full-scale render stage: 18,000 markers of ~15 kB
+# and ~40 files each, an index of ~100 MB decoded): beyond these a file is unreadable, not a memory bill.
+MAX_MARKER_BYTES = 16 * 2**20
+MAX_INDEX_BYTES = 2**30
+MAX_INDEX_VALUES = 100_000_000
 # A reader that had to read at least this many markers itself (or drop this many rows) rewrites the
 # index when it can, so the next reader does not (fewer, and the driver's write at stage end suffices).
 REFRESH_AFTER = 256
@@ -75,54 +82,60 @@ class MarkerFolder(Protocol):
 
 
 class LocalMarkerFolder:
-    """The marker folder `_state/<stage>` of a run folder on local disk."""
+    """The marker folder `_state/<stage>` of a run folder on local disk, reached and read through no link
+    (`pipeline.store.links`): a marker that is a link or a folder is read as an unreadable marker (its unit
+    is not done, and its commit replaces it), and a link on the way to the folder lists nothing."""
 
     def __init__(self, root: Path | str, stage: str):
-        self.folder = os.path.join(os.fspath(root), STATE, stage)
+        self.root = os.fspath(root)
+        self.relative = f"{STATE}/{stage}"
+        self.folder = os.path.join(self.root, STATE, stage)
 
     def listing(self) -> dict[str, str]:
         found = {}
         try:
-            with os.scandir(self.folder) as entries:
+            with links.folder(self.root, self.relative) as descriptor, os.scandir(descriptor) as entries:
                 for entry in entries:
                     name = entry.name
                     if name.endswith(MARKER_SUFFIX) and not name.startswith("."):
                         try:
-                            info = entry.stat()
+                            info = entry.stat(follow_symlinks=False)
                         except FileNotFoundError:
                             continue  # removed since readdir
                         # A marker is replaced by rename, so a rewrite always changes the inode, even
                         # within one tick of the file-system clock.
                         found[name] = f"{info.st_size}:{info.st_mtime_ns}:{info.st_ino}"
-        except (FileNotFoundError, NotADirectoryError):
+        except (FileNotFoundError, links.RunLinkError):
             return {}
         return found
 
     def read_texts(self, names: list[str]) -> dict[str, str]:
         texts = {}
-        for name in names:
-            try:
-                with open(os.path.join(self.folder, name), encoding="utf-8") as handle:
-                    texts[name] = handle.read()
-            except FileNotFoundError:
-                continue
-            except UnicodeDecodeError:
-                texts[name] = ""  # unreadable: parsed as no marker, as `read_marker` does
+        if not names:
+            return texts
+        try:
+            with links.folder(self.root, self.relative) as descriptor:
+                for name in names:
+                    try:
+                        with open(os.open(name, _READ, dir_fd=descriptor), "rb") as handle:
+                            too_big = os.fstat(handle.fileno()).st_size > MAX_MARKER_BYTES
+                            texts[name] = "" if too_big else handle.read().decode("utf-8")
+                    except FileNotFoundError:
+                        continue
+                    except (UnicodeDecodeError, OSError):  # a folder, a link (ELOOP), bad bytes: no marker
+                        texts[name] = ""
+        except (FileNotFoundError, links.RunLinkError):
+            return {}
         return texts
 
     def read_index(self) -> bytes | None:
         try:
-            with open(os.path.join(self.folder, INDEX_NAME), "rb") as handle:
-                return handle.read()
-        except (FileNotFoundError, NotADirectoryError):
+            return links.read_bytes(self.root, f"{self.relative}/{INDEX_NAME}")
+        except (OSError, links.RunLinkError):  # missing, a folder, a link: no index (rebuilt, which replaces it)
             return None
 
     def write_index(self, data: bytes) -> None:
-        target = os.path.join(self.folder, INDEX_NAME)
-        temporary = os.path.join(self.folder, f".{INDEX_NAME}.tmp-{os.getpid()}")
-        with open(temporary, "wb") as handle:
-            handle.write(data)
-        os.replace(temporary, target)
+        links.write_file(self.root, f"{self.relative}/{INDEX_NAME}", data)
 
 
 class FsspecMarkerFolder:
@@ -182,18 +195,21 @@ def _version_of(entry: dict[str, Any]) -> str:
 # ---------------------------------------------------------------------------------- reading
 
 
-def load_markers(folder: MarkerFolder, refresh: bool = True) -> dict[str, Marker]:
+def load_markers(folder: MarkerFolder, refresh: bool = True, unreadable: list[str] | None = None) -> dict[str, Marker]:
     """Every valid marker of the folder by unit id, as reading every marker file would give them.
 
     Markers the index holds under their current identity come from the index; the others are read.
+    `unreadable`, when given, receives the names of marker files that are no valid marker.
     With `refresh`, an index with many stale rows (or none, for a big folder) is rewritten when the
     folder is writable; a read-only run folder is simply read as it is.
     """
     rows, stale = _current_rows(folder)
+    if unreadable is not None:  # file names of markers that are no valid marker (damaged, a folder, a link)
+        unreadable.extend(name for name, (_, marker) in sorted(rows.items()) if marker is None)
     if refresh and stale >= REFRESH_AFTER:
         try:
             folder.write_index(_encode(rows))
-        except OSError as error:  # read-only: the markers were read; the next reader reads them again
+        except (OSError, RunFolderError) as error:  # read-only: the markers were read; the next reader reads them again
             log.debug("marker index not written (%s)", error)
     return {marker.unit: marker for _, (_, marker) in sorted(rows.items()) if marker is not None}
 
@@ -225,7 +241,7 @@ def _read_rows(folder: MarkerFolder) -> dict[str, tuple[str, Marker | None]]:
         return {}
     try:
         return _decode(data)
-    except (pa.ArrowException, OSError, ValueError, TypeError, KeyError) as error:
+    except (pa.ArrowException, OSError, ValueError, TypeError, KeyError, RecursionError, MemoryError) as error:
         log.warning("marker index %s ignored and rebuilt: %s", getattr(folder, "folder", folder),
                     error_text(error))
         return {}
@@ -233,7 +249,7 @@ def _read_rows(folder: MarkerFolder) -> dict[str, tuple[str, Marker | None]]:
 
 def _decode(data: bytes) -> dict[str, tuple[str, Marker | None]]:
     """The index's rows; the manifest is taken column by column (no Python object per Parquet cell)."""
-    table = pq.read_table(io.BytesIO(data))
+    table = _bounded_table(data)
     if (table.schema.metadata or {}).get(b"mvpd_marker_index") != str(INDEX_VERSION).encode() or \
             not table.schema.equals(INDEX_SCHEMA):
         raise ValueError("not a marker index of this version")
@@ -265,6 +281,22 @@ def _decode(data: bytes) -> dict[str, tuple[str, Marker | None]]:
                                                         crcs.slice(start, length))
         rows[name] = (identity, marker)
     return rows
+
+
+def _bounded_table(data: bytes) -> pa.Table:
+    """The index's table, after checking from its footer that decoding stays within MAX_INDEX_BYTES and
+    MAX_INDEX_VALUES (a forged footer or run-length code could otherwise make a few kilobytes decode to
+    gigabytes); ValueError beyond them."""
+    if len(data) > MAX_INDEX_BYTES:
+        raise ValueError(f"the index file has {len(data)} bytes, more than {MAX_INDEX_BYTES}")
+    parquet = pq.ParquetFile(io.BytesIO(data))
+    meta = parquet.metadata
+    chunks = [meta.row_group(g).column(c) for g in range(meta.num_row_groups) for c in range(meta.num_columns)]
+    declared = sum(max(chunk.total_uncompressed_size, 0) for chunk in chunks)
+    values = sum(max(chunk.num_values, 0) for chunk in chunks)
+    if declared > MAX_INDEX_BYTES or values > MAX_INDEX_VALUES or meta.num_rows > MAX_INDEX_VALUES:
+        raise ValueError(f"the index declares {declared} bytes and {values} values, more than an index holds")
+    return parquet.read()
 
 
 def _rows_with_bad_paths(paths: pa.Array, offsets: list[int]) -> set[int]:

@@ -117,7 +117,8 @@ def file_checksum(path: Path) -> str:
 
     Big files are mapped and summed in blocks (twice as fast as buffered reads from the page cache).
     """
-    with open(path, "rb") as handle:
+    # O_NOFOLLOW: a committed file that became a link is never read through (pipeline.store.links).
+    with open(path, "rb", opener=lambda name, flags: os.open(name, flags | os.O_NOFOLLOW)) as handle:
         size = os.fstat(handle.fileno()).st_size
         if size < _BLOCK:
             return f"{google_crc32c.value(handle.read()):08x}"
@@ -170,8 +171,8 @@ def parse_marker(text: str, name: str | None = None) -> Marker | None:
             return None  # no manifest: nothing can be checked, so it proves nothing; the unit runs again
         data["files"] = [OutputFile(**f) for f in data["files"]]
         marker = Marker(**data)
-    except (ValueError, TypeError, KeyError, AttributeError):
-        return None  # a damaged marker proves nothing: the unit runs again
+    except (ValueError, TypeError, KeyError, AttributeError, RecursionError):
+        return None  # a damaged marker (`[` nested 200,000 deep too) proves nothing: the unit runs again
     problem = marker_problem(marker, name, [f.path for f in marker.files])
     if problem is not None:
         log.warning("marker %s/%s ignored: %s; the unit runs again", marker.stage, marker.unit, problem)

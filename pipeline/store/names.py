@@ -14,6 +14,10 @@ from __future__ import annotations
 
 import os
 import re
+import secrets
+import stat
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterable
 
@@ -39,6 +43,20 @@ PLAIN_NAME = re.compile(_NAME)
 RUN_PATH = re.compile(rf"[A-Za-z0-9\-][A-Za-z0-9_.\-]*(?:/{_NAME})+")
 # Many paths at once, one per line: one regex call for a marker's ~40 paths instead of one each.
 _RUN_PATH_LINES = re.compile(rf"(?:{RUN_PATH.pattern}\n)*")
+
+
+class RunFolderError(ValueError):
+    """A path that is not a usable run folder; the message says why and what to do."""
+
+
+def is_run_folder(path: Path) -> bool:
+    """True when `path` holds what `mvpd submit` writes first: `_state/`, the folder of its markers and lock (a
+    real folder, not a link to one). A file named job.yaml alone (a user's project, a home folder) makes no
+    run folder."""
+    try:
+        return stat.S_ISDIR(os.lstat(Path(path) / STATE).st_mode)
+    except OSError:
+        return False
 
 
 def is_plain_name(name: str) -> bool:
@@ -68,6 +86,21 @@ def first_bad_run_path(paths: Iterable[str]) -> str | None:
 def atomic_write_text(path: Path, text: str) -> None:
     """Write a small text file by temp file + rename, so readers see the old or the new file whole."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    temporary.write_text(text, encoding="utf-8")
-    os.replace(temporary, path)
+    with replaced(path) as temporary:
+        temporary.write_text(text, encoding="utf-8")
+
+
+@contextmanager
+def replaced(path: Path) -> Iterator[Path]:
+    """A new temporary path beside `path` to write a file to, renamed over `path` when the block succeeds
+    (removed when it fails), so that readers see the old or the new file whole and `path` then names a new
+    file: a name that was a hard link of another file (a run's Parquet part) or a symbolic link to one
+    leaves that file's bytes as they were. The temporary name keeps the suffix (writers that pick the format
+    by it, matplotlib and OpenCV, still do) and is unguessable (no link can be planted there first)."""
+    path = Path(path)
+    temporary = path.with_name(f".{path.stem}.tmp-{os.getpid()}-{secrets.token_hex(4)}{path.suffix}")
+    try:
+        yield temporary
+        os.replace(temporary, path)
+    finally:
+        temporary.unlink(missing_ok=True)

@@ -15,20 +15,22 @@ from __future__ import annotations
 
 import logging
 import os
-import shutil
 import socket
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
-from typing import Any, Iterator
+from typing import IO, Any, Iterator
 
 import pyarrow as pa
 import yaml
 
 from pipeline.config import ConfigError, Job, job_from_resolved, load_yaml
 from pipeline.errors import error_text
+import pipeline.store.links as links
 from pipeline.store.backends import LocalFiles, RunFiles, RunFolderError, StoreFiles
+from pipeline.store.links import FolderCheck
 from pipeline.store.datasets import CheckedStages, TrustedPart, damage_line
 from pipeline.store.lock import Lease, check_fence
 from pipeline.store.marker_index import load_markers, write_index
@@ -67,6 +69,9 @@ class RunFolder:
         # handed to the units it starts): a commit checks that the lock still names it (lock.check_fence).
         self.lease: Lease | None = None
         self.fence = ""
+        # Stage -> names of its marker files that are no valid marker, as `markers` last found them (`status`
+        # names them: the unit is not done and its next commit replaces the file).
+        self.unreadable_markers: dict[str, list[str]] = {}
 
     # ------------------------------------------------------------------------------ opening
     @classmethod
@@ -107,11 +112,14 @@ class RunFolder:
 
     def job(self) -> Job:
         try:
-            data = load_yaml((self.root / JOB_FILE).read_text())
+            data = load_yaml(self.files.read_job() if isinstance(self.files, LocalFiles)
+                              else (self.root / JOB_FILE).read_text())
             return job_from_resolved(data["job"])
         except yaml.YAMLError as error:
             raise ConfigError(f"{self.root / JOB_FILE}: not valid YAML ({' '.join(str(error).split())}); "
                               "resubmit the job") from None
+        except (OSError, UnicodeDecodeError, RecursionError) as error:  # a folder, bad bytes (a link: RunLinkError)
+            raise ConfigError(f"{self.root / JOB_FILE}: cannot be read ({error_text(error)}); resubmit the job") from None
         except (KeyError, TypeError, ValueError) as error:
             raise ConfigError(f"{self.root / JOB_FILE}: unreadable resolved job ({error}); resubmit the job") from None
 
@@ -145,7 +153,10 @@ class RunFolder:
     def markers(self, stage: str) -> dict[str, Marker]:
         """Every valid marker of one stage, by unit id (through the stage's marker index, a cache checked
         against one listing of the folder: `pipeline.store.marker_index`)."""
-        return load_markers(self.files.marker_folder(stage))
+        unreadable: list[str] = []
+        found = load_markers(self.files.marker_folder(stage), unreadable=unreadable)
+        self.unreadable_markers[stage] = unreadable
+        return found
 
     def write_marker(self, marker: Marker) -> None:
         """Write a marker as a commit does, last (tools and fixtures that mark units done without outputs)."""
@@ -186,7 +197,10 @@ class RunFolder:
         one (measured on the 18,000 x 120-file run of benchmarks/bench_scaling.py), so the loop stays plain.
         """
         units, found = list(markers), self.files.recorded_damage(list(markers.values()))
-        problems = {unit: self.files.check(markers[unit], False) + noted for unit, noted in zip(units, found)}
+        check = self.files.check
+        if isinstance(self.files, LocalFiles):  # each output's folders lstat'ed once in this pass, not per file
+            check = partial(check, folders=FolderCheck(self.root), deep=False)
+        problems = {unit: check(markers[unit], False) + noted for unit, noted in zip(units, found)}
         return {unit: damage for unit, damage in problems.items() if damage}
 
     def record_damage(self, stage: str, damaged: list[tuple[Marker, list[Damage]]] = (),
@@ -268,14 +282,13 @@ class RunFolder:
     # ------------------------------------------------------------------------------ commits
     def staging(self, stage: str, unit: str) -> Path:
         """A fresh, empty staging folder for one attempt of a unit."""
-        path = self.root / STAGING / stage / f"{unit}.{socket.gethostname()}.{os.getpid()}"
-        shutil.rmtree(path, ignore_errors=True)
-        path.mkdir(parents=True)
-        return path
+        relative = f"{STAGING}/{stage}/{unit}.{socket.gethostname()}.{os.getpid()}"
+        links.remove(self.root, relative)
+        return links.make_folder(self.root, relative)
 
     def clear_staging(self, stage: str) -> None:
         """Remove what a stage's attempts staged and did not commit (failed units)."""
-        shutil.rmtree(self.root / STAGING / stage, ignore_errors=True)
+        links.remove(self.root, f"{STAGING}/{stage}")
 
     def commit_unit(self, stage: str, unit: str, staging: Path, config_hash: str, rows: dict[str, int],
                     seconds: float, attempt: int, finished_at: float, host: str,
@@ -321,9 +334,23 @@ class RunFolder:
 
     # --------------------------------------------------------------------------------- logs
     def log_path(self, stage: str, unit: str) -> Path:
-        path = self.root / "logs" / stage / f"{unit}.log"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        return path
+        """Where a unit's log is (its folder created, reached through no link); open it with `open_log`."""
+        return links.make_folder(self.root, f"logs/{stage}") / f"{unit}.log"
+
+    def open_log(self, stage: str, unit: str) -> IO[str]:
+        """A unit's log opened for appending, following no link (a link there: RunLinkError)."""
+        flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT
+        return open(links.open_file(self.root, f"logs/{stage}/{unit}.log", flags), "a", encoding="utf-8")
+
+    def check_links(self) -> None:
+        """RunLinkError (one line naming it) when a link sits among the run's own folders: a driver or `gc`
+        refuses such a run before it changes anything (`pipeline.store.links`)."""
+        if isinstance(self.files, LocalFiles):
+            found = links.run_links(self.root)
+            if found:
+                raise links.RunLinkError(links.link_repair(self.root, found[0])
+                                         + (f" ({len(found) - 1} more links: `mvpd status` lists them)"
+                                            if len(found) > 1 else ""))
 
     def upload_log(self, stage: str, unit: str) -> None:
         """Keep a unit's log with the run (on a store, a copy; best effort: a log is not an output)."""

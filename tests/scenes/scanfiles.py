@@ -205,9 +205,9 @@ def quads_of(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return np.array(quads, np.int64), np.array(quad_ids, np.int64)
 
 
-def write_replica(scene: Scene, root: Path, name: str) -> Path:
+def write_replica(scene: Scene, root: Path, name: str, first_id: int = 0) -> Path:
     """`<root>/<name>/mesh.ply` (coloured quads), `habitat/mesh_semantic.ply` (quads + object_id) and
-    `habitat/info_semantic.json`."""
+    `habitat/info_semantic.json`; instance ids are first_id + the object's index."""
     folder = root / name / "habitat"
     folder.mkdir(parents=True)
     index = object_index(scene)
@@ -215,11 +215,62 @@ def write_replica(scene: Scene, root: Path, name: str) -> Path:
     names = sorted({o.raw_name for o in scene.objects.values()})
     classes = [{"id": c + 1, "name": n} for c, n in enumerate(names)]
     class_of = {n: c + 1 for c, n in enumerate(names)}
-    objects = [{"id": k, "class_id": class_of[scene.objects[object_id].raw_name],
+    objects = [{"id": first_id + k, "class_id": class_of[scene.objects[object_id].raw_name],
                 "class_name": scene.objects[object_id].raw_name, "oriented_bbox": {}} for object_id, k in index.items()]
     (folder / "info_semantic.json").write_text(json.dumps(
         {"classes": classes, "objects": objects, "id_to_label": [o["class_id"] for o in objects]}), encoding="utf-8")
     columns = _vertex_columns(file_vertices(scene), scene.vertex_colors, normals=True)
     write_ply(root / name / "mesh.ply", columns, quads)
-    object_ids = instance_indices(scene, quad_ids).astype(np.int32)
+    object_ids = (first_id + instance_indices(scene, quad_ids)).astype(np.int32)
     return write_ply(folder / "mesh_semantic.ply", columns, quads, {"object_id": object_ids})
+
+
+# Names published Replica files give instances of class_id -1 (the issue's three scenes: 2 to 22 per scene).
+CLASSLESS_NAMES = ("undefined", "non-plane", "anonymize_picture", "anonymize_text")
+
+
+def _oriented_box(vertices: np.ndarray) -> dict:
+    """An `oriented_bbox` as published files write it: an axis box in the box frame, and that frame."""
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    return {"abb": {"center": ((low + high) / 2).tolist(), "sizes": (high - low).tolist()},
+            "orientation": {"rotation": [0.0, 0.0, 0.0, 1.0], "translation": [0.0, 0.0, 0.0]}}
+
+
+def classless_objects(scene: Scene, count: int = 4) -> dict[int, str]:
+    """House object id -> a class -1 name, for the `count` largest objects that are not floors (so walks
+    still find a labelled floor), cycling through CLASSLESS_NAMES."""
+    sizes = np.bincount(scene.face_object_ids.astype(np.int64), minlength=max(scene.objects) + 1)
+    candidates = sorted((i for i in scene.objects if scene.objects[i].category != 2), key=lambda i: (-sizes[i], i))
+    return {object_id: CLASSLESS_NAMES[k % len(CLASSLESS_NAMES)] for k, object_id in enumerate(candidates[:count])}
+
+
+def write_published_replica(scene: Scene, root: Path, name: str, classless: dict[int, str]) -> Path:
+    """`write_replica` with `info_semantic.json` in the shape of the published files: the `classless`
+    house objects have class_id -1 and their own class_name; `id_to_label` is indexed by instance id
+    with [0] = -2 and lists ids no face uses; two such unused instances (one of class -1) are listed
+    too; every object has a `node_id` and an oriented box; `gravity_dir` is given."""
+    semantic = write_replica(scene, root, name, first_id=1)  # published ids start at 1: id_to_label[0] is -2
+    info_path = semantic.with_name("info_semantic.json")
+    info = json.loads(info_path.read_text(encoding="utf-8"))
+    vertices = file_vertices(scene)
+    index = object_index(scene)
+    by_replica_id = {1 + k: object_id for object_id, k in index.items()}
+    for entry in info["objects"]:
+        object_id = by_replica_id[entry["id"]]
+        entry["node_id"] = 1000 + entry["id"]
+        entry["oriented_bbox"] = _oriented_box(vertices[scene.faces[scene.face_object_ids == object_id].reshape(-1)])
+        if object_id in classless:
+            entry["class_id"], entry["class_name"] = -1, classless[object_id]
+    unused = len(index) + 4
+    info["objects"] += [
+        {"id": unused, "class_id": info["classes"][0]["id"], "class_name": info["classes"][0]["name"], "node_id": 9,
+         "oriented_bbox": _oriented_box(vertices[:3])},
+        {"id": unused + 2, "class_id": -1, "class_name": "undefined", "node_id": 11, "oriented_bbox": _oriented_box(vertices[:3])},
+    ]
+    labels = [-2] * (unused + 3)
+    for entry in info["objects"]:
+        labels[entry["id"]] = entry["class_id"]
+    info["id_to_label"] = labels
+    info["gravity_dir"] = [0.0, 0.0, -1.0]
+    info_path.write_text(json.dumps(info, indent=2), encoding="utf-8")
+    return semantic

@@ -64,10 +64,10 @@ def _break(root: Path, house: Scene) -> dict[str, str]:
     return {
         "emptyhouse0": r"emptyhouse0\.house: no `O` object or `E` segment records",
         "nocategory0": rf"nocategory0\.house:{first_object + 1}: object \d+ has category_index 999",
-        "scene0001_00": r"scene0001_00\.aggregation\.json: segGroups\[2\]\.segments names segment 987654, which "
+        "scene0001_00": r"scene0001_00\.aggregation\.json:segGroups\[2\]\.segments: names segment 987654, which "
                         r"scene0001_00_vh_clean_2\.0\.010000\.segs\.json \(segIndices\) does not hold",
         "scene0002_00": r"segs\.json: segIndices has \d+ entries but the mesh has \d+ vertices",
-        "office_9": r"info_semantic\.json: objects\[4\]\.class_id 4242 is not in classes",
+        "office_9": r"info_semantic\.json:objects\[4\]\.class_id: 4242 is not in classes",
     }
 
 

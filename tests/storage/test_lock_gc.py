@@ -330,14 +330,14 @@ def test_gc_that_loses_its_lock_stops_deleting(tmp_path, monkeypatch):
     dead = [run / "_staging" / "render" / f"emb.proc-{k}.0000.otherhost.4242" for k in (1, 2)]
     for folder in dead:
         folder.mkdir(parents=True)
-    real_rmtree = garbage.shutil.rmtree
+    real_remove = garbage.links.remove
 
-    def then_another_driver_takes_the_lock(path, **options):
-        real_rmtree(path, **options)  # the first folder goes; then the lease is lost to another driver
+    def then_another_driver_takes_the_lock(root, relative):
+        real_remove(root, relative)  # the first folder goes; then the lease is lost to another driver
         (run / lock_module.LOCK_KEY).write_text(json.dumps({"owner": "another", "pid": 1, "host": "elsewhere",
                                                             "heartbeat": time.time()}), encoding="utf-8")
 
-    monkeypatch.setattr(garbage.shutil, "rmtree", then_another_driver_takes_the_lock)
+    monkeypatch.setattr(garbage.links, "remove", then_another_driver_takes_the_lock)
     with pytest.raises(LeaseLostError, match="held by pid 1 on elsewhere"):
         collect_garbage(RunFolder.open(run))
     assert not dead[0].exists() and dead[1].exists()  # fenced: nothing deleted after the lease was lost

@@ -43,7 +43,7 @@ from pipeline.io.mvpd.panoptic_json import PanopticJsonSpool
 from pipeline.io.mvpd.split_files import empty_videos_file, split_rows_of, zero_shot_file
 from pipeline.io.reader import video_locations
 from pipeline.io.zarr_video import Video, open_video
-from pipeline.store.names import atomic_write_text
+from pipeline.store.names import atomic_write_text, replaced
 from pipeline.store.run_folder import RunFolder
 from pipeline.split.selection import has_split, split_rows
 
@@ -133,7 +133,7 @@ def export_release(run: RunFolder, out_root: Path, split: str = "test", embodime
             write_json(staging / EMPTY_VIDEOS, empty_videos_file(rows))
             write_json(staging / ZERO_SHOT, zero_shot_file(run, split, rows))
             atomic_write_text(paths.root / f"{split}.txt", "".join(f"{s}\n" for s in sorted({r["scene_id"] for r in rows})))
-        _swap_into_place(staging, paths.folder)
+        swap_into_place(staging, paths.folder)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
@@ -349,7 +349,8 @@ class VideoExporter:
         for segment, entry in present.items():
             self.export.instances.setdefault(segment, entry["instance"])
         stem = frame_stem(frame)
-        Image.fromarray(ids_to_png(png_ids)).save(self.folders[PANOMASKS] / f"{stem}.png", format="PNG")
+        with replaced(self.folders[PANOMASKS] / f"{stem}.png") as temporary:  # a new file each (see `replaced`)
+            Image.fromarray(ids_to_png(png_ids)).save(temporary, format="PNG")
         if rgb is not None:
             _write_jpeg(self.folders[IMAGES_RGB] / f"{stem}.jpg", rgb)
         if depth is not None:
@@ -373,7 +374,8 @@ class VideoExporter:
 
 
 def _write_jpeg(path: Path, rgb: np.ndarray) -> None:
-    Image.fromarray(rgb).save(path, format="JPEG", quality=JPEG_QUALITY, subsampling=0)
+    with replaced(path) as temporary:
+        Image.fromarray(rgb).save(temporary, format="JPEG", quality=JPEG_QUALITY, subsampling=0)
 
 
 def _segments_info(png_ids: np.ndarray, present: dict[int, dict[str, Any]]) -> list[dict[str, Any]]:
@@ -427,8 +429,9 @@ def _to_mvpd_ids(panoptic: np.ndarray, scene: str, video: str, objects: dict[tup
 
 def _write_depth_png(path: Path, depth: np.ndarray) -> None:
     """uint16 millimetres as a 16-bit greyscale PNG (what MVPd's loader reads with cv2)."""
-    if not cv2.imwrite(str(path), np.ascontiguousarray(depth, dtype=np.uint16)):
-        raise OSError(f"{path}: could not write the depth PNG; check free space and permissions")
+    with replaced(path) as temporary:
+        if not cv2.imwrite(str(temporary), np.ascontiguousarray(depth, dtype=np.uint16)):
+            raise OSError(f"{path}: could not write the depth PNG; check free space and permissions")
 
 
 # ------------------------------------------------------------------------------------- split files
@@ -445,7 +448,7 @@ def _write_filter_files(folder: Path, split: str, exported: list[ExportedVideo])
     write_json(folder / ZERO_SHOT, zero_shot)
 
 
-def _swap_into_place(staging: Path, target: Path) -> None:
+def swap_into_place(staging: Path, target: Path) -> None:
     """Rename the finished split into place; an older export is moved aside first, then deleted."""
     if not target.exists():
         os.replace(staging, target)

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.scenes.categories import STUFF_CATEGORIES, categories
+from pipeline.store.names import atomic_write_text
 
 # MVPd's camera (DESIGN.md): 640 x 480, 69 degrees horizontal field of view; imports keep the files' size.
 MVPD_HFOV_DEGREES = 69.0
@@ -218,4 +219,4 @@ def require(mapping: Any, key: str, kind: type, source: Path, where: str) -> Any
 
 def write_json(path: Path, data: Any) -> None:
     """Deterministic JSON (fixed key order as built, compact separators like MVPd's files)."""
-    path.write_text(json.dumps(data, separators=(", ", ": ")), encoding="utf-8")
+    atomic_write_text(path, json.dumps(data, separators=(", ", ": ")))

@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import json
 import shutil
+import tempfile
 from pathlib import Path
 from typing import IO, Any
 
 from pipeline.io.mvpd.layout import mvpd_categories
+from pipeline.store.names import replaced
 
 SEPARATORS = (", ", ": ")  # write_json's
 LISTS = ("videos", "annotations")  # then "categories" (fixed), then "instances"
@@ -25,7 +27,8 @@ class PanopticJsonSpool:
 
     def __init__(self, folder: Path, name: str):
         self.path = folder / name
-        self._spools = {key: open(folder / f".{name}.{key}.spool", "w+", encoding="utf-8")
+        # Anonymous files in the output folder (no name a link could sit at), gone when closed.
+        self._spools = {key: tempfile.TemporaryFile("w+", encoding="utf-8", dir=folder)
                         for key in (*LISTS, "instances")}
         self._count = dict.fromkeys(self._spools, 0)
 
@@ -39,7 +42,7 @@ class PanopticJsonSpool:
 
     def finish(self) -> None:
         """Write the JSON file and remove the spools."""
-        with open(self.path, "w", encoding="utf-8") as out:
+        with replaced(self.path) as temporary, open(temporary, "w", encoding="utf-8") as out:
             for key in LISTS:
                 out.write(("{" if key == LISTS[0] else ", ") + json.dumps(key) + ": [")
                 self._copy(key, out)
@@ -51,10 +54,9 @@ class PanopticJsonSpool:
         self.close()
 
     def close(self) -> None:
-        """Close and remove the spools (idempotent)."""
+        """Close (and so remove) the spools (idempotent)."""
         for spool in self._spools.values():
             spool.close()
-            Path(spool.name).unlink(missing_ok=True)
 
     def _append(self, key: str, entries: list[dict[str, Any]]) -> None:
         spool = self._spools[key]
