@@ -18,7 +18,7 @@ from rich.table import Table
 from typer.core import TyperGroup
 
 from pipeline.cli.out_paths import OutPathError
-from pipeline.cli.startup import INTERRUPTED_LINE, TERMINATED_LINE, commands_handle_signals
+from pipeline.cli.signals import INTERRUPTED_LINE, TERMINATED_LINE, commands_handle_signals
 from pipeline.runtime.executor import StagePlan, StageReport
 from pipeline.runtime.ray_session import got_sigterm, stop_on_sigterm
 from pipeline.store.names import is_plain_name
@@ -54,7 +54,7 @@ class FullHelpGroup(TyperGroup):
     def invoke(self, ctx: click.Context) -> object:
         """Run the command; SIGTERM and Ctrl-C stop it (context managers unwind, the run lock is released)
         and exit 143 or 130 with one line instead of a stack dump (before and after the command, the entry
-        point's handlers say the same: `pipeline.cli.startup`); an --out that must not be written to is
+        point's handlers say the same: `pipeline.cli.signals`); an --out that must not be written to is
         refused in one line (exit 2); a driver stopped by its storage or a lost lease exits 1 in one line."""
         try:
             with commands_handle_signals(stop_on_sigterm):

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 if __name__ == "__main__":  # `python -m pipeline.cli.main`: a signal during the imports below is one line too
-    from pipeline.cli.startup import exit_on_signals_while_starting
+    from pipeline.cli.signals import exit_on_signals_while_starting
 
     exit_on_signals_while_starting()
 
