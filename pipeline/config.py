@@ -18,7 +18,25 @@ from typing import Annotated, Any, ClassVar, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from pipeline.errors import error_text
+
 SCHEMA_VERSION = 1
+
+# Bounds of the fields that multiply work (scenes x trajectories x frames x pixels x embodiments x
+# heights), generous for real use: MVPd is 180 scenes x 50 trajectories of up to 600 frames at 640x480,
+# 3 embodiments x 2 heights, and a lab may want ten times each. They turn a typo (an extra zero, a
+# pasted number) into one line naming the field at once instead of hours of work or a machine out of memory.
+MAX_SCENES = 10_000  # generated houses of one source
+MAX_TRAJECTORIES = 1_000  # per scene
+MAX_FRAMES = 10_000  # per trajectory
+MAX_PIXELS = 4096 * 4096  # per frame (width x height): 55x MVPd's 640x480
+MAX_EMBODIMENTS = 64
+MAX_PLACEMENTS = 32  # camera heights per embodiment
+MAX_ATTEMPTS = 100_000  # start/goal draws per scene
+# Deeper nesting than any job or embodiment file has (theirs is under 8 levels); PyYAML's composer
+# recurses once per level, so a deeper file would end in a RecursionError instead of one line.
+MAX_YAML_DEPTH = 50
+MAX_CONFIG_BYTES = 4 * 1024 * 1024  # a job file with 10x MVPd's scene lists is under 1 MB
 
 
 class ConfigError(ValueError):
@@ -52,7 +70,7 @@ class Strict(BaseModel):
 class ProceduralSource(Strict):
     """Generated houses (the embedded default: no download)."""
 
-    count: int = Field(3, ge=1, description="number of houses")
+    count: int = Field(3, ge=1, le=MAX_SCENES, description=f"number of houses (at most {MAX_SCENES:,})")
     seed: int = Field(0, ge=0, description="seed of the first house; house i uses seed + i")
     detail: float = Field(0.1, gt=0, le=1.0, description="mesh density: 0.05 ~ 50 k triangles, 1.0 ~ 1 M")
     min_rooms: int = Field(3, ge=1, le=12, description="fewest rooms per house")
@@ -161,8 +179,8 @@ class Sensor(Strict):
 
     kind: Literal["rgbd"] = "rgbd"
     model: Literal["ideal", "structured_light"] = Field("ideal", description="depth noise model")
-    width: int = Field(640, ge=8, le=8192, description="pixels")
-    height: int = Field(480, ge=8, le=8192, description="pixels")
+    width: int = Field(640, ge=8, le=8192, description=f"pixels; width x height at most {MAX_PIXELS:,}")
+    height: int = Field(480, ge=8, le=8192, description=f"pixels; width x height at most {MAX_PIXELS:,}")
     hfov: float | None = Field(69.0, gt=0, lt=180, description="horizontal field of view, degrees")
     fx: float | None = Field(None, gt=0, description="pixels; overrides hfov when given with fy, cx, cy")
     fy: float | None = Field(None, gt=0)
@@ -180,6 +198,9 @@ class Sensor(Strict):
             raise ValueError("give hfov or fx, fy, cx, cy")
         if self.near >= self.far:
             raise ValueError("near must be smaller than far")
+        if self.width * self.height > MAX_PIXELS:
+            raise ValueError(f"width x height is {self.width * self.height:,} pixels, more than {MAX_PIXELS:,} "
+                             "(4096 x 4096); render smaller frames")
         return self
 
     def intrinsics(self) -> tuple[float, float, float, float]:
@@ -254,7 +275,8 @@ class Embodiment(Strict):
     name: str = Field(pattern=r"^[A-Za-z0-9_\-]+$", description="used in paths; letters, digits, _ and -")
     sensor: Sensor = Sensor()
     placements: list[Annotated[float, Field(gt=0)]] = Field(
-        default_factory=lambda: [1.0, 0.1], min_length=1, description="camera heights above the floor, metres"
+        default_factory=lambda: [1.0, 0.1], min_length=1, max_length=MAX_PLACEMENTS,
+        description=f"camera heights above the floor, metres (at most {MAX_PLACEMENTS}; each makes its own videos)"
     )
     body: Body = Body()
     illumination: Illumination = Illumination()
@@ -277,14 +299,15 @@ class Embodiment(Strict):
 class PlanConfig(Strict):
     """Path planning: how many trajectories and how they are interpolated."""
 
-    trajectories_per_scene: int = Field(50, ge=1)
-    min_frames: int = Field(100, ge=2)
-    max_frames: int = Field(600, ge=2)
+    trajectories_per_scene: int = Field(50, ge=1, le=MAX_TRAJECTORIES, description=f"at most {MAX_TRAJECTORIES:,}")
+    min_frames: int = Field(100, ge=2, le=MAX_FRAMES, description=f"fewest frames of a trajectory (at most {MAX_FRAMES:,})")
+    max_frames: int = Field(600, ge=2, le=MAX_FRAMES, description=f"most frames of a trajectory (at most {MAX_FRAMES:,})")
     max_step: float = Field(0.05, gt=0, description="metres per frame along a straight move, in 3D (floor changes "
                             "under the move count: a rug edge or a stair makes the camera ramp over more frames)")
     max_turn: float = Field(0.5, gt=0, description="degrees per frame when turning in place")
     grid_resolution: float = Field(0.05, gt=0, description="metres per cell of the navigable-area grid")
-    max_attempts: int = Field(2000, ge=1, description="start/goal draws per scene before giving up")
+    max_attempts: int = Field(2000, ge=1, le=MAX_ATTEMPTS, description="start/goal draws per scene before giving up "
+                              f"(at most {MAX_ATTEMPTS:,})")
     require_ceiling: bool = Field(True, description="floors need a surface above them (keeps robots off roofs); "
                                                     "turn off for scans with holes in their ceilings")
     reachable_only: bool = Field(True, description="paths only on the floor a robot put down at the building's "
@@ -314,9 +337,10 @@ class RenderConfig(Strict):
 class EvaluateConfig(Strict):
     """VSQ protocol knobs; the defaults are the published evaluator's."""
 
-    ks: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [1, 5, 10, 15],
-                                                  description="prefix lengths: score the first k frames of each window")
-    window: int = Field(15, ge=1, description="frames per window; windows start while start < T - window")
+    ks: list[Annotated[int, Field(ge=1, le=MAX_FRAMES)]] = Field(
+        default_factory=lambda: [1, 5, 10, 15], min_length=1, max_length=64,
+        description="prefix lengths: score the first k frames of each window (at most 64 of them)")
+    window: int = Field(15, ge=1, le=MAX_FRAMES, description="frames per window; windows start while start < T - window")
     stride: int = Field(15, ge=1, description="frames between window starts")
     min_area_fraction: float = Field(0.001, ge=0, lt=1, description="ground-truth ids below this fraction of the full frame become void")
     subsample: int = Field(2, ge=1, description="keep every n-th row and column")
@@ -387,13 +411,14 @@ class ZeroShotConfig(Strict):
     encoder: Literal["tfidf", "minilm", "clip"] = Field("tfidf", description="text encoder of the raw names")
     weights: Path | None = Field(None, description="clip: local open_clip weights file (never downloaded)")
     model: str = Field("ViT-L-14", description="clip: open_clip architecture of the weights file")
-    ngram_min: int = Field(2, ge=1, description="tfidf: shortest character n-gram")
-    ngram_max: int = Field(4, ge=1, description="tfidf: longest character n-gram")
-    clusters: int = Field(20, ge=2, description="k-means clusters")
+    ngram_min: int = Field(2, ge=1, le=32, description="tfidf: shortest character n-gram (at most 32)")
+    ngram_max: int = Field(4, ge=1, le=32, description="tfidf: longest character n-gram (at most 32)")
+    clusters: int = Field(20, ge=2, le=10_000, description="k-means clusters (at most 10,000)")
     unseen_fraction: float = Field(0.2, gt=0, lt=1, description="share of clusters (least seen in training) held out")
     categories: list[Annotated[int, Field(ge=1, le=40)]] = Field(default_factory=lambda: [39, 40], min_length=1,
                                                                  description="mpcat40 categories whose names are clustered")
-    n_init: int = Field(10, ge=1, description="k-means restarts (k-means++), as the authors' scikit-learn default was")
+    n_init: int = Field(10, ge=1, le=1_000, description="k-means restarts (k-means++), as the authors' scikit-learn "
+                        "default was (at most 1,000)")
     seed: int = Field(0, ge=0, description="k-means random_state")
 
     @model_validator(mode="after")
@@ -424,8 +449,9 @@ class StageResources(Strict):
 class RuntimeConfig(Strict):
     """How the job runs on Ray."""
 
-    max_in_flight: int = Field(0, ge=0, description="tasks in flight per stage (backpressure); 0 = the cluster's CPUs / the stage's cpus per unit")
-    max_retries: int = Field(3, ge=0, description="retries of a unit whose worker died (not of its errors)")
+    max_in_flight: int = Field(0, ge=0, le=100_000, description="tasks in flight per stage (backpressure); 0 = the "
+                               "cluster's CPUs / the stage's cpus per unit")
+    max_retries: int = Field(3, ge=0, le=100, description="retries of a unit whose worker died (not of its errors; at most 100)")
     inline_seconds: float = Field(4.0, ge=0, allow_inf_nan=False, description="executor auto: a stage whose remaining "
                                   "work is projected below this many seconds runs in-process instead of starting Ray")
     resources: dict[Literal["shard", "plan", "render", "screen", "split", "evaluate", "import", "predict"], StageResources] = Field(default_factory=dict)
@@ -441,7 +467,8 @@ class Job(Strict):
                       description="names the run folder runs/<name>: letters, digits, _, - and . (not only dots)")
     seed: int = Field(0, ge=0, description="root of every random draw")
     scenes: SceneSources
-    embodiments: list[Embodiment] = Field(min_length=1)
+    embodiments: list[Embodiment] = Field(min_length=1, max_length=MAX_EMBODIMENTS,
+                                          description=f"each renders every trajectory again (at most {MAX_EMBODIMENTS})")
     plan: PlanConfig = PlanConfig()
     render: RenderConfig = RenderConfig()
     evaluate: EvaluateConfig = EvaluateConfig()
@@ -492,22 +519,72 @@ def _format_error(source: str, error: ValidationError) -> str:
         message = f"unknown key; did you mean {guess[0]!r}?" if guess else "unknown key; check its spelling against schemas/job.schema.json"
     elif first["type"] == "missing":
         message = "required key is missing"
+    elif first["type"] in ("less_than_equal", "too_long"):  # a bound on work (MAX_SCENES, ...): say where they are
+        message = f"{message} (the bounds are in schemas/job.schema.json)"
     more = f" (+{len(errors) - 1} more)" if len(errors) > 1 else ""
     return f"{source}: {key}: {message}{more}"
+
+
+class _BoundedLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, made to end every bad input in a YAMLError: nesting deeper than MAX_YAML_DEPTH
+    is refused while composing (the composer recurses once per level), and a value a constructor cannot
+    build (an integer of more than 4,300 digits, a date like 2024-13-45) is a ConstructorError at its line
+    instead of a bare ValueError. Aliases stay shared references (no expansion), so an alias bomb costs
+    only its nodes."""
+
+    def __init__(self, stream: str) -> None:
+        super().__init__(stream)
+        self.depth = 0
+
+    def compose_node(self, parent: yaml.Node | None, index: object) -> yaml.Node | None:
+        if self.depth >= MAX_YAML_DEPTH:
+            raise yaml.composer.ComposerError(problem=f"nested deeper than {MAX_YAML_DEPTH} levels, far more than "
+                                              "any job or embodiment file needs; is this the right file?",
+                                              problem_mark=self.peek_event().start_mark)
+        self.depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self.depth -= 1
+
+    def construct_object(self, node: yaml.Node, deep: bool = False) -> Any:
+        try:
+            return super().construct_object(node, deep)
+        except (ValueError, OverflowError) as error:
+            raise yaml.constructor.ConstructorError(problem=f"value {error_text(error, 120)}",
+                                                    problem_mark=node.start_mark) from None
+
+
+def load_yaml(text: str) -> Any:
+    """`yaml.safe_load` of untrusted text whose every failure is a `yaml.YAMLError` (see `_BoundedLoader`)."""
+    loader = _BoundedLoader(text)
+    try:
+        return loader.get_single_data()
+    finally:
+        loader.dispose()
+
+
+def yaml_error_line(path: object, error: yaml.YAMLError) -> str:
+    """`path[:line]: not valid YAML (what)` on one line."""
+    mark = getattr(error, "problem_mark", None)
+    line = f":{mark.line + 1}" if mark is not None else ""
+    what = getattr(error, "problem", None) or error
+    return f"{path}{line}: not valid YAML ({error_text(what, 200)})"
 
 
 def _read_yaml(path: Path) -> dict:
     if not path.is_file():
         raise ConfigError(f"{path}: no such file; give the path of a YAML job file")
+    if path.stat().st_size > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{path}: {path.stat().st_size:,} bytes, more than any job or embodiment file "
+                          f"({MAX_CONFIG_BYTES:,}); give a YAML job file")
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = load_yaml(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError as error:
         raise ConfigError(f"{path}: byte {error.start} is not UTF-8 text; give a YAML job file "
                           "(is this a binary file?)") from None
     except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None)
-        line = f":{mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"{path}{line}: not valid YAML ({getattr(error, 'problem', error)})") from None
+        raise ConfigError(yaml_error_line(path, error)) from None
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: the top level must be a mapping of keys to values")
     return data

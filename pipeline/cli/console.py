@@ -18,11 +18,13 @@ from rich.table import Table
 from typer.core import TyperGroup
 
 from pipeline.cli.out_paths import OutPathError
+from pipeline.cli.signals import INTERRUPTED_LINE, TERMINATED_LINE, commands_handle_signals
 from pipeline.runtime.executor import StagePlan, StageReport
-from pipeline.runtime.ray_session import got_sigterm
+from pipeline.runtime.ray_session import got_sigterm, stop_on_sigterm
 from pipeline.store.names import is_plain_name
 from pipeline.runtime.runner import Observer
 from pipeline.runtime.status import UnitOutcome
+from pipeline.store.failures import RunStoppedError
 
 console = Console(highlight=False)
 errors = Console(stderr=True, highlight=False)
@@ -51,10 +53,12 @@ class FullHelpGroup(TyperGroup):
 
     def invoke(self, ctx: click.Context) -> object:
         """Run the command; SIGTERM and Ctrl-C stop it (context managers unwind, the run lock is released)
-        and exit 143 or 130 with one line instead of a stack dump; an --out that must not be written to is
-        refused in one line (exit 2)."""
+        and exit 143 or 130 with one line instead of a stack dump (before and after the command, the entry
+        point's handlers say the same: `pipeline.cli.signals`); an --out that must not be written to is
+        refused in one line (exit 2); a driver stopped by its storage or a lost lease exits 1 in one line."""
         try:
-            return super().invoke(ctx)
+            with commands_handle_signals(stop_on_sigterm):
+                return super().invoke(ctx)
         except SystemExit as exit_:  # ray.init's own SIGTERM handler (active while Ray starts) calls sys.exit(15)
             if exit_.code != signal.SIGTERM:
                 raise
@@ -65,19 +69,19 @@ class FullHelpGroup(TyperGroup):
             interrupted()
         except OutPathError as error:
             fail(str(error))
+        except RunStoppedError as error:  # an outage, a full disk or a lost lease under any command's driver
+            fail(str(error), EXIT_FAILED)
 
 
 def terminated() -> NoReturn:
     """Stop after SIGTERM: one line on stderr, exit 143."""
-    errors.print("stopped: the process got SIGTERM; finished units are kept, rerun the same command to go on",
-                 soft_wrap=True)
+    errors.print(TERMINATED_LINE, soft_wrap=True)
     raise typer.Exit(EXIT_TERMINATED)
 
 
 def interrupted() -> NoReturn:
     """Stop after Ctrl-C (SIGINT): one line on stderr, exit 130."""
-    errors.print("stopped: interrupted (Ctrl-C); finished work is kept, run the same command again to go on",
-                 soft_wrap=True)
+    errors.print(INTERRUPTED_LINE, soft_wrap=True)
     raise typer.Exit(EXIT_INTERRUPTED)
 
 

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError, version
-from typing import Annotated
+if __name__ == "__main__":  # `python -m pipeline.cli.main`: a signal during the imports below is one line too
+    from pipeline.cli.signals import exit_on_signals_while_starting
 
-import typer
+    exit_on_signals_while_starting()
 
-from pipeline.cli import evaluate, models, mvpd_io, plan, render, run_commands, scenes, view
-from pipeline.cli.console import HELP_SETTINGS, FullHelpGroup
-from pipeline.runtime.ray_session import stop_on_sigterm
+from importlib.metadata import PackageNotFoundError, version  # noqa: E402 - after the signal handlers
+from typing import Annotated  # noqa: E402
+
+import typer  # noqa: E402
+
+from pipeline.cli import evaluate, models, mvpd_io, plan, render, run_commands, scenes, view  # noqa: E402
+from pipeline.cli.console import HELP_SETTINGS, FullHelpGroup  # noqa: E402
 
 app = typer.Typer(cls=FullHelpGroup, no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
                   rich_markup_mode=None, context_settings=HELP_SETTINGS,
@@ -31,7 +35,6 @@ def main(
                                                help="print the version and exit")] = False,
 ) -> None:
     """Embodiment-configurable RGB-D video segmentation datasets (MVPd) on Ray."""
-    stop_on_sigterm()
 
 
 for area in (run_commands, scenes, plan, render, evaluate, mvpd_io, models, view):

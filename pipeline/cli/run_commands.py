@@ -16,7 +16,8 @@ from pipeline.cli.out_paths import check_out_file, out_file
 from pipeline.config import ConfigError, Job, load_job
 from pipeline.io.dataset_stats import (COMPARISON_COLUMNS, SPLIT_ROWS, DatasetStats, StatsError, dataset_stats,
                                        write_stats_picture)
-from pipeline.io.query import DEFAULT_TIMEOUT_S, QueryError, QueryTimeout, query, result_table, write_result
+from pipeline.io.query import (DEFAULT_MEMORY_LIMIT, DEFAULT_TIMEOUT_S, QueryError, QueryStopped, query, result_table,
+                               write_result)
 from pipeline.runtime.executor import StageOrderError, StagePlan
 from pipeline.store.failures import RunStoppedError, stop_on_storage_failure
 from pipeline.store.lock import RunLockedError
@@ -262,12 +263,14 @@ def query_command(
     fmt: Annotated[OutputFormat, typer.Option("--format", help="output format")] = OutputFormat.table,
     out: Annotated[Optional[Path], typer.Option(help="write the result to this file [default: standard output]")] = None,
     timeout: Annotated[float, typer.Option(min=0, help="stop the query after this many seconds (0: no limit)")] = DEFAULT_TIMEOUT_S,
+    memory_limit: Annotated[str, typer.Option(help="stop the query when DuckDB needs more memory than this, e.g. 8GB, "
+                                              "500MB, 50% (of this machine's); it never spills to disk")] = DEFAULT_MEMORY_LIMIT,
 ) -> None:
     """Query the run's Parquet metadata with SQL (DuckDB)."""
     if out is not None:
         check_out_file(out)  # refused before the query runs
     try:
-        relation = query(RunFolder.open(run_dir), sql, timeout)
+        relation = query(RunFolder.open(run_dir), sql, timeout, memory_limit)
         if fmt is OutputFormat.table:
             result = result_table(relation)
             table = Table(*result.column_names)
@@ -277,7 +280,7 @@ def query_command(
             return
         with out_file(out) if out is not None else nullcontext(None) as target:  # a new file renamed over --out
             text = write_result(relation, fmt.value, target)
-    except QueryTimeout as error:
+    except QueryStopped as error:  # its time or memory bound: the query was fine, exit 1
         fail(str(error), EXIT_FAILED)
     except USAGE_ERRORS as error:
         fail(str(error))

@@ -23,6 +23,10 @@ T = TypeVar("T")
 _DENSE_JOINT_LIMIT = 1 << 22
 
 
+class TooManyMasksError(ValueError):
+    """A frame with more masks than its reader allows (the argument: how many); the reader names the file."""
+
+
 @dataclass(frozen=True)
 class GroundTruthFrame:
     """One ground-truth frame after the small-segment filter and subsampling.
@@ -119,11 +123,18 @@ def ground_truth_frame(label: np.ndarray, min_area_fraction: float, stride: int)
     return GroundTruthFrame(labels=labels, ids=present)
 
 
-def prediction_frame_from_ids(label: np.ndarray, stride: int) -> PredictionFrame:
-    """A tracker's id image (0 = no prediction) -> one mask per id, carrying the ids."""
+def prediction_frame_from_ids(label: np.ndarray, stride: int, max_masks: int | None = None) -> PredictionFrame:
+    """A tracker's id image (0 = no prediction) -> one mask per id, carrying the ids.
+
+    Raises:
+        TooManyMasksError: more than `max_masks` ids (None: no bound), found before the (ids x ids) arrays
+            are built.
+    """
     rows, columns = subsampled_shape(*label.shape, stride)
     sub = label[: rows * stride : stride, : columns * stride : stride]
     labels, ids = _compact(np.ascontiguousarray(sub.T).ravel(), None)
+    if max_masks is not None and ids.size > max_masks:
+        raise TooManyMasksError(ids.size)
     membership = np.vstack([np.zeros((1, ids.size)), np.eye(ids.size)])
     return PredictionFrame(atoms=labels, membership=membership, ids=ids)
 

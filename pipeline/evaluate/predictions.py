@@ -9,6 +9,8 @@ Layouts under the prediction folder `<pred>`:
     <video>.zarr                             (T, H, W) integer ids of a tracker, 0 = nothing; the
                                              array at the store root or named "ids" / "panoptic"
 Readers check every mask's size against the ground truth and validate the RLE; errors name the file.
+A frame holds at most MAX_MASKS_PER_FRAME masks (ids): its arrays grow with pixels x masks, so that bounds
+the memory one frame can take (about 600 MB at 640x480 in the worst case, 1 MB for a typical frame).
 """
 
 from __future__ import annotations
@@ -19,11 +21,16 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.errors import error_text
 from pipeline.evaluate.errors import MissingPredictionError, PredictionError
-from pipeline.evaluate.frames import PredictionFrame, prediction_frame_from_ids, prediction_frame_from_runs, subsampled_shape
+from pipeline.evaluate.frames import (PredictionFrame, TooManyMasksError, prediction_frame_from_ids,
+                                      prediction_frame_from_runs, subsampled_shape)
 from pipeline.evaluate.rle import Runs, decode_counts, decode_joined_counts, runs_from_lengths, subsample_runs
 
 RLE_FOLDER = "panomasksRLE"
+# Far above any segmenter's output (MVPd's frames show ~70 objects; SAM's automatic mask generator keeps a
+# few hundred at most).
+MAX_MASKS_PER_FRAME = 1024
 
 
 class PredictionSource:
@@ -75,7 +82,24 @@ class PredictionSource:
         if tuple(array.shape[1:]) != tuple(shape) or array.shape[0] != len(self.stems):
             raise PredictionError(f"{self.store}: id array has shape {tuple(array.shape)}, expected "
                                   f"({len(self.stems)}, {shape[0]}, {shape[1]}); predict every frame at the ground truth's size")
-        return prediction_frame_from_ids(np.asarray(array[index]), stride)
+        frame = _read_id_frame(self.store, array, index)
+        if not np.issubdtype(frame.dtype, np.integer):
+            raise PredictionError(f"{self.store}: id array of {frame.dtype}, not integers; store the tracker's ids as integers")
+        try:
+            return prediction_frame_from_ids(frame, stride, MAX_MASKS_PER_FRAME)
+        except TooManyMasksError as error:
+            raise PredictionError(f"{self.store}: frame {index} holds {error.args[0]} ids, more than "
+                                  f"{MAX_MASKS_PER_FRAME}; is this an id array (0 = nothing, one id per tracked "
+                                  "object)?") from None
+
+
+def _read_id_frame(store: Path, array: Any, index: int) -> np.ndarray:
+    """Frame `index` of a Zarr id array; a chunk that cannot be read or decoded is one line naming the store."""
+    try:
+        return np.asarray(array[index])
+    except Exception as error:  # noqa: BLE001 - zarr and its codecs raise many types for a damaged chunk
+        raise PredictionError(f"{store}: frame {index} cannot be read ({type(error).__name__}: "
+                              f"{error_text(error, 120)}); rewrite the id array") from None
 
 
 def _open_id_array(store: Path) -> Any:
@@ -83,8 +107,9 @@ def _open_id_array(store: Path) -> Any:
 
     try:
         node = zarr.open(str(store), mode="r")
-    except (FileNotFoundError, ValueError) as error:
-        raise PredictionError(f"{store}: unreadable Zarr store ({error}); rewrite it") from None
+    except Exception as error:  # noqa: BLE001 - zarr raises many types for damaged metadata (JSON, keys, types)
+        raise PredictionError(f"{store}: unreadable Zarr store ({type(error).__name__}: {error_text(error, 120)}); "
+                              "rewrite it") from None
     if isinstance(node, zarr.Group):
         for name in ("ids", "panoptic"):
             if name in node:
@@ -113,10 +138,14 @@ def read_rle_file(path: Path) -> dict[str, Any]:
     else:
         try:
             data = json.loads(path.read_bytes())
-        except (ValueError, UnicodeDecodeError) as error:
-            raise PredictionError(f"{path}: not valid JSON ({error}); rewrite it as {{\"coco_rle\": [...]}}") from None
+        except (ValueError, RecursionError) as error:  # UnicodeDecodeError is a ValueError; nesting too deep for json
+            raise PredictionError(f"{path}: not valid JSON ({error_text(error, 120)}); rewrite it as "
+                                  "{\"coco_rle\": [...]}") from None
     if not isinstance(data, dict) or not isinstance(data.get("coco_rle"), list):
         raise PredictionError(f"{path}: needs a 'coco_rle' list (possibly empty); rewrite it as {{\"coco_rle\": [...]}}")
+    if len(data["coco_rle"]) > MAX_MASKS_PER_FRAME:
+        raise PredictionError(f"{path}: {len(data['coco_rle'])} masks, more than {MAX_MASKS_PER_FRAME} in one frame; "
+                              "keep the model's best masks")
     return data
 
 
@@ -158,7 +187,7 @@ def _checked_counts(rles: list[Any], height: int, width: int, source: str) -> li
     counts: list[Any] = []
     for index, rle in enumerate(rles):
         size = rle.get("size") if isinstance(rle, dict) else None
-        if not isinstance(size, (list, tuple)) or [int(s) for s in size] != [height, width]:
+        if not isinstance(size, (list, tuple)) or list(size) != [height, width]:
             raise PredictionError(f"{source}: mask {index} has size {size}, the ground truth is {height}x{width}; "
                                   "predict at the ground truth's full resolution")
         value = rle.get("counts")
@@ -182,11 +211,11 @@ def _lengths(counts: list[bytes | list], source: str) -> tuple[np.ndarray, np.nd
     for value in counts:
         if isinstance(value, bytes):
             pieces.append(decode_counts([value], source)[0])
-        else:
-            try:
-                pieces.append(np.asarray(value, dtype=np.int64).reshape(-1))
-            except (TypeError, ValueError):
-                raise PredictionError(f"{source}: corrupt RLE (uncompressed counts are not integers); re-encode the mask") from None
+        elif all(type(count) is int and 0 <= count < 2**62 for count in value):
+            pieces.append(np.asarray(value, dtype=np.int64))
+        else:  # a float would be truncated, a bool taken for 0/1, a huge number overflow int64
+            raise PredictionError(f"{source}: corrupt RLE (uncompressed counts are not all integers from 0 to 2^62); "
+                                  "re-encode the mask")
     offsets = np.concatenate([[0], np.cumsum([p.size for p in pieces])]).astype(np.int64)
     return (np.concatenate(pieces) if pieces else np.zeros(0, dtype=np.int64)), offsets
 
@@ -195,6 +224,6 @@ def _tracker_ids(data: dict[str, Any], masks: int, source: str) -> np.ndarray | 
     ids = data.get("ids")
     if ids is None:
         return None
-    if not isinstance(ids, list) or len(ids) != masks or not all(isinstance(i, int) and i > 0 for i in ids):
+    if not isinstance(ids, list) or len(ids) != masks or not all(type(i) is int and 0 < i < 2**63 for i in ids):
         raise PredictionError(f"{source}: 'ids' must list one positive integer per mask of 'coco_rle'; fix or drop it")
     return np.asarray(ids, dtype=np.int64)

@@ -12,6 +12,10 @@ extension loading and Python replacement scans are switched off and its configur
 object storage the parts are the keys their markers name, read in place through the run's fsspec client
 registered with DuckDB (no httpfs extension is installed or loaded; the allowed paths are those keys). `query` also accepts only a single read statement, so
 `COPY ... TO`, `ATTACH`, `INSTALL`/`LOAD` and `SET` are refused before they reach DuckDB.
+
+`query` bounds DuckDB's memory to a quarter of the machine's (`DEFAULT_MEMORY_LIMIT`; DuckDB's own
+default, 80 %, is too much beside Ray workers on a head node) and never spills to disk (DuckDB would
+write a `.tmp` folder into the working directory): a query that needs more ends in one line.
 """
 
 from __future__ import annotations
@@ -41,6 +45,10 @@ class QueryError(ValueError):
     """SQL that DuckDB rejected or that is not a read; the message is one line."""
 
 
+class QueryStopped(QueryError):
+    """A valid query stopped by a bound (its time or its memory); the CLI exits 1, not 2."""
+
+
 FRAME_KEY = ("embodiment", "video_name", "frame")
 READ_STATEMENTS = {duckdb.StatementType.SELECT, duckdb.StatementType.EXPLAIN}
 # Applied after the datasets are registered; `lock_configuration` last so SQL cannot undo any of them.
@@ -53,10 +61,13 @@ LOCKDOWN = (
 )
 
 
-def connect(run: RunFolder, only: Sequence[str] | None = None) -> duckdb.DuckDBPyConnection:
+def connect(run: RunFolder, only: Sequence[str] | None = None,
+            memory_limit: str | None = None) -> duckdb.DuckDBPyConnection:
     """An in-memory, locked-down DuckDB connection with one view per Parquet dataset of the run (`frames` joined).
 
     `only` registers just those datasets (what a stage reads), sparing the marker reads of the others.
+    `memory_limit` (DuckDB's notation: "8GB", "500MB", "25%" of the machine) bounds DuckDB's memory and
+    switches spilling to disk off; None keeps DuckDB's defaults.
     """
     connection = duckdb.connect(":memory:")
     if run.store is not None:  # parts are read in place, through the run's own fsspec client (no httpfs)
@@ -77,9 +88,21 @@ def connect(run: RunFolder, only: Sequence[str] | None = None) -> duckdb.DuckDBP
     allowed = sorted({form for files in parts.values() for f in files for name in _spellings(run, f)
                       for form in (name, _glob_escaped(name))})
     connection.execute(f"SET allowed_paths = [{', '.join(_literal(path) for path in allowed)}]")
+    if memory_limit is not None:
+        _limit_memory(connection, memory_limit)
     for setting in LOCKDOWN:
         connection.execute(setting)
     return connection
+
+
+def _limit_memory(connection: duckdb.DuckDBPyConnection, memory_limit: str) -> None:
+    """DuckDB's memory bound, and no spilling (its `temp_directory` would be `.tmp` in the working directory)."""
+    try:
+        connection.execute(f"SET memory_limit = {_literal(memory_limit)}")
+    except duckdb.Error as error:
+        raise QueryError(f"--memory-limit {memory_limit!r}: {_first_line(error)}; give a size such as 8GB, "
+                         "500MB or 50% (of the machine's memory)") from None
+    connection.execute("SET temp_directory = ''")
 
 
 def _spellings(run: RunFolder, file: str) -> tuple[str, ...]:
@@ -130,15 +153,21 @@ def check_read_only(sql: str) -> None:
 
 
 DEFAULT_TIMEOUT_S = 600.0
+DEFAULT_MEMORY_LIMIT = "25%"  # of the machine's memory, as DuckDB sees it (a container's limit included)
 
 
-class QueryTimeout(QueryError):
+class QueryTimeout(QueryStopped):
     """The query ran longer than its timeout and was stopped."""
 
 
-def query(run: RunFolder, sql: str, timeout_s: float | None = DEFAULT_TIMEOUT_S) -> duckdb.DuckDBPyRelation:
-    """Run one read-only `sql` statement against the run's datasets; the result is materialised, so every
-    DuckDB error surfaces here as a one-line QueryError.
+class QueryOutOfMemory(QueryStopped):
+    """The query needed more memory than its limit and was stopped."""
+
+
+def query(run: RunFolder, sql: str, timeout_s: float | None = DEFAULT_TIMEOUT_S,
+          memory_limit: str = DEFAULT_MEMORY_LIMIT) -> duckdb.DuckDBPyRelation:
+    """Run one read-only `sql` statement against the run's datasets within `timeout_s` and `memory_limit`
+    (`connect`); the result is materialised, so every DuckDB error surfaces here as a one-line QueryError.
 
     DuckDB runs the statement in a thread of its own while this thread waits, so that a timeout (None or
     0: none) or a signal (Ctrl-C, or SIGTERM through the CLI's handler) is noticed at once and interrupts
@@ -146,7 +175,7 @@ def query(run: RunFolder, sql: str, timeout_s: float | None = DEFAULT_TIMEOUT_S)
     DuckDB's C++ holds the main thread.
     """
     check_read_only(sql)
-    connection = connect(run)
+    connection = connect(run, memory_limit=memory_limit)
     outcome: dict[str, object] = {}
 
     def execute() -> None:
@@ -171,6 +200,9 @@ def query(run: RunFolder, sql: str, timeout_s: float | None = DEFAULT_TIMEOUT_S)
     if isinstance(error, duckdb.InterruptException):
         raise QueryTimeout(f"the query ran longer than {timeout_s:g} s and was stopped; narrow it, "
                            "or give a longer --timeout (0: none)")
+    if isinstance(error, duckdb.OutOfMemoryException):
+        raise QueryOutOfMemory(f"the query needed more than its memory limit ({_first_line(error)}); narrow it, "
+                               f"or give a larger --memory-limit (now {memory_limit})")
     if not isinstance(error, duckdb.Error):
         raise error  # type: ignore[misc]
     known = ", ".join(run.datasets()) or "none yet"

@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from pipeline.config import Job, config_hash
+from pipeline.config import Job, config_hash, load_yaml
 from pipeline.evaluate.predictions import RLE_FOLDER
 from pipeline.models.fastspam import FastSpam, FastSpamOptions
 from pipeline.models.segmenter import SEGMENTERS, FrameInput, ModelError, Segmenter, make_segmenter
@@ -67,7 +67,7 @@ class ModelConfig(BaseModel):
 def load_model_file(path: Path) -> ModelConfig:
     """A model file (YAML: name, options, self_prompting, fastspam) -> ModelConfig; one-line errors."""
     try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        data = load_yaml(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ModelError(f"{path}: model file not found; pass an existing YAML file") from None
     except yaml.YAMLError as error:
@@ -225,7 +225,7 @@ def check_output_folder(out: Path, identity: dict[str, Any]) -> None:
         raise PredictionInputError(f"{out}: is a file; choose a folder for --out")
     manifest = out / MANIFEST
     if manifest.is_file():
-        recorded = yaml.safe_load(manifest.read_text(encoding="utf-8")) or {}
+        recorded = load_yaml(manifest.read_text(encoding="utf-8")) or {}
         if recorded.get("identity") != identity:
             differs = sorted(k for k in identity if recorded.get("identity", {}).get(k) != identity[k])
             raise PredictionInputError(f"{out}: holds predictions of another {', '.join(differs)} "

@@ -41,6 +41,7 @@ import psutil
 
 from pipeline.errors import error_text
 import pipeline.store.links as links
+from pipeline.store.failures import RunStoppedError
 from pipeline.store.names import STATE
 
 if TYPE_CHECKING:
@@ -68,8 +69,9 @@ class RunLockedError(RuntimeError):
     """Another live run holds the run folder."""
 
 
-class LeaseLostError(RunLockedError):
-    """This driver's lease on the run lapsed or was taken over: it must not commit anything more."""
+class LeaseLostError(RunStoppedError):
+    """This driver's lease on the run lapsed or was taken over: it must not commit anything more. The driver
+    stopped, as after an outage (exit 1), its input was fine (not a RunLockedError, exit 2)."""
 
 
 class RunFolderNotWritableError(RunLockedError):

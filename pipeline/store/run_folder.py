@@ -26,7 +26,7 @@ from typing import IO, Any, Iterator
 import pyarrow as pa
 import yaml
 
-from pipeline.config import ConfigError, Job, job_from_resolved
+from pipeline.config import ConfigError, Job, job_from_resolved, load_yaml
 from pipeline.errors import error_text
 import pipeline.store.links as links
 from pipeline.store.backends import LocalFiles, RunFiles, RunFolderError, StoreFiles
@@ -112,8 +112,8 @@ class RunFolder:
 
     def job(self) -> Job:
         try:
-            data = yaml.safe_load(self.files.read_job() if isinstance(self.files, LocalFiles)
-                                  else (self.root / JOB_FILE).read_text())
+            data = load_yaml(self.files.read_job() if isinstance(self.files, LocalFiles)
+                              else (self.root / JOB_FILE).read_text())
             return job_from_resolved(data["job"])
         except yaml.YAMLError as error:
             raise ConfigError(f"{self.root / JOB_FILE}: not valid YAML ({' '.join(str(error).split())}); "
