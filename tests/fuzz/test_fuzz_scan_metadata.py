@@ -23,6 +23,7 @@ from pipeline.scenes.replica import read_info
 from pipeline.scenes.ply import write_ply
 from pipeline.scenes.scannet import _segment_list, read_labels_tsv, read_scannet
 from pipeline.scenes.scene import SceneError
+from tests.fuzz.breaking import broken_bytes
 from tests.fuzz.outcome import result_or_one_line_error
 
 NAMES = st.sampled_from(["chair", "wall", "floor", "undefined", "non-plane", "anonymize_text", "kitchen cabinet",
@@ -63,18 +64,8 @@ def _break_json(draw: st.DrawFn, document: Any) -> Any:
 NEST = "<nest>"  # replaced in the text by arrays nested deeper than json.dumps (or json.loads) can recurse
 
 
-def _break_bytes(draw: st.DrawFn, data: bytes) -> bytes:
-    """The bytes truncated, with a slice repeated, or with NUL / invalid UTF-8 / a huge number inserted."""
-    how = draw(st.sampled_from(["truncate", "repeat", "insert"]))
-    cut = draw(st.integers(0, len(data)))
-    if how == "truncate":
-        return data[:cut]
-    if how == "repeat":
-        end = draw(st.integers(cut, len(data)))
-        return data[:end] + data[cut:end] * draw(st.integers(1, 3)) + data[end:]
-    junk = draw(st.sampled_from([b"\x00", b"\xff\xfe", b"\xc3", b"99999999999999999999999", b"-", b"\n", b",", b"\t",
-                                 b"[" * 3000, b"1e400", b"NaN", b'"']))
-    return data[:cut] + junk + data[cut:]
+# Tokens the metadata readers' parsers may stumble on, beside breaking.broken_bytes' own ways.
+JUNK = (b"99999999999999999999999", b"-", b"\n", b",", b"\t", b"[" * 3000, b"1e400", b"NaN", b'"', b"\xff\xfe")
 
 
 def _maybe_broken_json(draw: st.DrawFn, document: Any) -> bytes:
@@ -83,7 +74,7 @@ def _maybe_broken_json(draw: st.DrawFn, document: Any) -> bytes:
         document = _break_json(draw, document)
     depth = draw(st.sampled_from([100000, 2]))
     data = json.dumps(document).replace(json.dumps(NEST), "[" * depth + "0" + "]" * depth).encode("utf-8")
-    return _break_bytes(draw, data) if way in ("bytes", "both") else data
+    return draw(broken_bytes(data, JUNK)) if way in ("bytes", "both") else data
 
 
 def _maybe_broken_text(draw: st.DrawFn, lines: list[str]) -> bytes:
@@ -100,7 +91,7 @@ def _maybe_broken_text(draw: st.DrawFn, lines: list[str]) -> bytes:
         fields[f] = str(draw(st.one_of(ODD_NUMBERS, st.sampled_from(["x", "", "0x1F", "-0", "١٢", "nan"]))))
         lines[k] = separator.join(fields)
     data = ("\n".join(lines) + "\n").encode("utf-8")
-    return _break_bytes(draw, data) if draw(st.booleans()) else data
+    return draw(broken_bytes(data, JUNK)) if draw(st.booleans()) else data
 
 
 def _check(path: Path, data: bytes, read: Callable[[], Any]) -> Any:
