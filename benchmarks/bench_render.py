@@ -151,8 +151,9 @@ def _box(low: np.ndarray, high: np.ndarray, cells: int) -> tuple[np.ndarray, np.
     return np.concatenate(vertices), np.concatenate(faces)
 
 
-def planned_poses(frames: int, folder: Path) -> tuple[Scene, np.ndarray, str]:
-    """The detail-1.0 house and real trajectories from the shard and plan stages (run inline, no Ray).
+def planned_poses(frames: int, folder: Path, detail: float = 1.0) -> tuple[Scene, np.ndarray, str]:
+    """The house of `detail` (1.0: the bench house, ~1 M triangles; 0.1: the 1 % job's) and real trajectories
+    from the shard and plan stages (run inline, no Ray).
 
     Returns the scene, (N, 4, 4) poses (the planned videos at 1.0 m, concatenated, at least `frames`
     when the plan finds enough) and a description. Raises UnitFailedError when a stage fails.
@@ -164,7 +165,7 @@ def planned_poses(frames: int, folder: Path) -> tuple[Scene, np.ndarray, str]:
     from pipeline.stages import make_stage
 
     job = Job(name="bench-render", seed=0, embodiments=[Embodiment(name="bench", placements=[1.0])],
-              scenes=SceneSources(procedural=ProceduralSource(count=1, seed=0, detail=1.0)),
+              scenes=SceneSources(procedural=ProceduralSource(count=1, seed=0, detail=detail)),
               plan=PlanConfig(trajectories_per_scene=4, min_frames=100, max_frames=600))
     run = RunFolder.create(folder / "run", job)
     for name in ("shard", "plan"):
@@ -476,14 +477,14 @@ def summary(values: list[float]) -> dict[str, Any]:
     return {"median_ms": round(float(np.median(ms)), 2), "min_ms": min(ms), "max_ms": max(ms), "runs_ms": ms}
 
 
-def versus_mitsuba(frames: int, repeats: int, threads: int, baseline: Path | None) -> dict[str, Any]:
+def versus_mitsuba(frames: int, repeats: int, threads: int, baseline: Path | None, detail: float = 1.0) -> dict[str, Any]:
     """Ours (this tree, and `baseline`'s when given) and warm Mitsuba 3 taking turns `repeats` times on the
     same poses of the bench house: CPU and wall per frame, median of the turns with spread; ratios by CPU."""
     from bench_light import export, mitsuba_python, peer_version
 
     folder = Path(tempfile.mkdtemp(prefix="bench_render_mitsuba_"))
     try:
-        scene, all_poses, pose_source = planned_poses(frames, folder)
+        scene, all_poses, pose_source = planned_poses(frames, folder, detail)
         poses = spread(all_poses, frames)
         (folder / "house.pkl").write_bytes(pickle.dumps((scene, poses)))
         export(scene, poses, folder / "peer", [], MITSUBA_RENDERS, threads)
@@ -510,7 +511,7 @@ def versus_mitsuba(frames: int, repeats: int, threads: int, baseline: Path | Non
         for kind in ("ambient", "spot_direct"):
             table[name][kind]["kb_per_frame"] = round(turns[name][0][kind]["bytes_per_frame"] / 1000, 1)
     result: dict[str, Any] = {
-        "scene": {"triangles": scene.triangle_count, "poses": pose_source}, "frames": len(poses),
+        "scene": {"triangles": scene.triangle_count, "detail": detail, "poses": pose_source}, "frames": len(poses),
         "resolution": [640, 480], "threads": threads, "repeats": repeats,
         "peers": {"mitsuba": peer_version(python, "mitsuba"), "variant": "llvm_ad_rgb", "renders": MITSUBA_RENDERS},
         "load_1m": {"min": min(loads), "max": max(loads), "each_turn": loads},
@@ -550,6 +551,8 @@ def main() -> None:
     parser.add_argument("--baseline", type=Path, help="with --vs-mitsuba: also time this checkout's pipeline (an "
                         "older commit's worktree) in the same turns")
     parser.add_argument("--threads", type=int, default=2, help="threads of ours and Mitsuba in --vs-mitsuba")
+    parser.add_argument("--detail", type=float, default=1.0, help="with --vs-mitsuba: the house's detail (0.1: the 1 %% "
+                        "job's houses, for bench_scaling's calibrated cost model); results/render_vs_mitsuba_detail<d>.json")
     parser.add_argument("--child", type=Path, help=argparse.SUPPRESS)  # one turn of ours (versus_mitsuba)
     args = parser.parse_args()
 
@@ -557,8 +560,9 @@ def main() -> None:
         child_ours(args.child, args.threads)
         return
     if args.vs_mitsuba:
-        result = versus_mitsuba(args.frames, args.repeats, args.threads, args.baseline)
-        out = Path(__file__).resolve().parent / "results" / "render_vs_mitsuba.json"
+        result = versus_mitsuba(args.frames, args.repeats, args.threads, args.baseline, args.detail)
+        suffix = "" if args.detail == 1.0 else f"_detail{args.detail:g}"
+        out = Path(__file__).resolve().parent / "results" / f"render_vs_mitsuba{suffix}.json"
         out.write_text(json.dumps(result, indent=1) + "\n")
         print(json.dumps({k: v for k, v in result.items() if k != "per_frame"}, indent=1))
         for name, kinds in result["per_frame"].items():
