@@ -45,6 +45,7 @@ from pipeline.render.lighting import SurfaceColors  # noqa: E402
 from pipeline.render.raycaster import SceneRaycaster, available_cpus  # noqa: E402
 from pipeline.render.renderer import (  # noqa: E402
     SceneLabels, VideoRenderer, camera_of, limit_worker_threads)
+from pipeline.render import renderer as renderer_module  # noqa: E402
 from pipeline.render.sensors import depth_to_millimetres  # noqa: E402
 from pipeline.render.stage import ZSTD_LEVEL, directory_bytes, video_attributes  # noqa: E402
 from pipeline.runtime.executor import UnitFailedError  # noqa: E402
@@ -421,12 +422,22 @@ def cast_depth_ids(scene: Scene, poses: np.ndarray, threads: int) -> dict[str, f
     renderer = VideoRenderer(scene, body.model_copy(update={"illumination": Illumination()}), 1.0,
                              raycaster=SceneRaycaster(scene, threads=threads))
     sensor, labels = body.sensor, renderer.labels
-    renderer.trace(poses[0])
+    fused = getattr(renderer_module, "_depth_and_labels", None)  # the renderer's one pass (absent before issue 31)
+    shape = (sensor.height, sensor.width)
+    millimetres, panoptic, dense = np.empty(shape, np.uint16), np.empty(shape, np.uint32), np.empty(shape, np.int32)
+
+    def depth_and_ids(hits: Any) -> None:
+        if fused is None:  # what the renderer did before: whole-array passes (without its dense labels)
+            depth_to_millimetres(hits.depth, sensor.near, sensor.far)
+            np.take(labels.object_ids, hits.face, mode="clip")
+        else:  # the renderer's own pass (it also writes the dense labels)
+            fused(hits.depth, hits.face, np.float32(sensor.near), np.float32(sensor.far), labels.object_ids,
+                  labels.dense_of_face, millimetres, panoptic, dense)
+
+    depth_and_ids(renderer.trace(poses[0]))
     started, cpu_started = time.perf_counter(), time.process_time()
     for pose in poses:
-        hits = renderer.trace(pose)
-        depth_to_millimetres(hits.depth, sensor.near, sensor.far)
-        np.take(labels.object_ids, hits.face, mode="clip")
+        depth_and_ids(renderer.trace(pose))
     return {"wall_s": (time.perf_counter() - started) / len(poses), "cpu_s": (time.process_time() - cpu_started) / len(poses)}
 
 
