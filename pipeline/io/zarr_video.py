@@ -74,7 +74,10 @@ class VideoWriter:
         self.path = Path(path)
 
     def append(self, **frame: np.ndarray) -> None:
-        """Add one frame: one keyword per array (rgb=..., depth=..., panoptic=...), exact shape and dtype."""
+        """Add one frame: one keyword per array (rgb=..., depth=..., panoptic=...), exact shape and dtype.
+
+        The arrays are kept, not copied, until their shard is written (after `close` at the latest): do not
+        modify them once appended."""
         if set(frame) != set(self.arrays):
             raise VideoWriteError(f"{self.path}: append got arrays {sorted(frame)}, the store has {sorted(self.arrays)}")
         buffered = len(self._buffer[next(iter(self.arrays))])
@@ -96,7 +99,9 @@ class VideoWriter:
         count = len(self._buffer[next(iter(self.arrays))])
         if count == 0:
             return
-        blocks = {name: np.stack(self._buffer[name]) for name in self.arrays}
+        # A whole shard is encoded frame by frame (`_write_whole_shard`): no copy of its frames into one block.
+        whole = count == self.shard and self._written % self.shard == 0 and remote_url(str(self.path)) is None
+        blocks = {name: list(self._buffer[name]) if whole else np.stack(self._buffer[name]) for name in self.arrays}
         for frames in self._buffer.values():
             frames.clear()
         self._wait()
@@ -106,9 +111,9 @@ class VideoWriter:
             self._write(self._written, blocks)
         self._written += count
 
-    def _write(self, start: int, blocks: dict[str, np.ndarray]) -> None:
+    def _write(self, start: int, blocks: dict[str, np.ndarray | list[np.ndarray]]) -> None:
         for name, block in blocks.items():
-            if len(block) == self.shard and start % self.shard == 0 and remote_url(str(self.path)) is None:
+            if isinstance(block, list):
                 _write_whole_shard(self.path / name, start // self.shard, block, self._zstd)
             else:  # the last, partial shard of a video: Zarr leaves its missing chunks out of the index
                 self.arrays[name][start:start + len(block)] = block
@@ -139,7 +144,7 @@ class VideoWriter:
         return self._written
 
 
-def _write_whole_shard(array_folder: Path, index: int, block: np.ndarray, zstd: Any) -> None:
+def _write_whole_shard(array_folder: Path, index: int, frames: list[np.ndarray], zstd: Any) -> None:
     """Write shard `index` of an array (every one of its chunks: one frame each) as Zarr's sharding codec
     writes it for this layout, byte for byte: the chunks zstd-compressed one after the other in frame order
     (the Morton order of a (frames, 1, 1) grid), then the index (offset, length per chunk, little-endian
@@ -148,12 +153,12 @@ def _write_whole_shard(array_folder: Path, index: int, block: np.ndarray, zstd: 
     Why not `array[...] = block`: Zarr's asynchronous codec pipeline costs more than the compression itself
     (~4.6 ms per 640x480 frame of rgb + depth + panoptic, zstd alone ~2 ms; benchmarks/bench_render.py).
     tests/io/test_zarr_video.py checks that the files equal Zarr's own."""
-    chunks = [zstd.encode(np.ascontiguousarray(frame)) for frame in block]
+    chunks = [zstd.encode(np.ascontiguousarray(frame)) for frame in frames]
     lengths = np.array([len(chunk) for chunk in chunks], np.uint64)
     offsets = np.concatenate([np.zeros(1, np.uint64), np.cumsum(lengths, dtype=np.uint64)[:-1]])
     table = np.stack([offsets, lengths], axis=-1).astype("<u8").tobytes()
     checksum = np.array([google_crc32c.value(table)], "<u4").tobytes()
-    path = array_folder.joinpath("c", str(index), *["0"] * (block.ndim - 1))
+    path = array_folder.joinpath("c", str(index), *["0"] * frames[0].ndim)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as out:
         out.writelines([*chunks, table, checksum])
