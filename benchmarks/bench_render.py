@@ -1,6 +1,10 @@
 """Render benchmark: end-to-end fps at 640x480 on a ~1 M-triangle house, vs pyrender (OSMesa), memory, bytes.
 
 Run: `cd /work/main && .venv/bin/python benchmarks/bench_render.py [--frames 96] [--skip-pyrender]`.
+Against warm Mitsuba 3 (issue 31; its virtualenv: benchmarks/setup_light_peers.sh): `--vs-mitsuba --frames 32
+[--baseline WORKTREE_OF_AN_OLDER_COMMIT]`: ambient and direct-only spot end to end and cast + depth + ids
+against Mitsuba's `direct` 1 spp and `aov` (depth + shape id), 2 threads each, CPU and wall per frame, taking
+turns (median of --repeats turns, with spread and the load), into results/render_vs_mitsuba.json.
 Targets (issue #5): >= 30 fps end to end (ray cast + every buffer + Zarr write) on 2 cores; >= 3x the fps of
 pyrender with OSMesa (a lit colour + depth pass plus a flat label pass); <= 2 GiB peak memory of a worker;
 <= 150 kB stored per frame (rgb + depth + panoptic, lossless). Results go to benchmarks/results/render.json.
@@ -18,9 +22,11 @@ import argparse
 import json
 import multiprocessing
 import os
+import pickle
 import platform
 import resource
 import shutil
+import subprocess
 import sys
 import tempfile
 import time
@@ -29,7 +35,8 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+# MVPD_TREE: the checkout whose pipeline a `--child` process times (`--baseline`: an older commit's worktree).
+sys.path.insert(0, os.environ.get("MVPD_TREE") or str(Path(__file__).resolve().parents[1]))
 
 from pipeline.config import Embodiment, Illumination, Sensor  # noqa: E402
 from pipeline.io.segments import frame_segments  # noqa: E402
@@ -38,6 +45,8 @@ from pipeline.render.lighting import SurfaceColors  # noqa: E402
 from pipeline.render.raycaster import SceneRaycaster, available_cpus  # noqa: E402
 from pipeline.render.renderer import (  # noqa: E402
     SceneLabels, VideoRenderer, camera_of, limit_worker_threads)
+from pipeline.render import renderer as renderer_module  # noqa: E402
+from pipeline.render.sensors import depth_to_millimetres  # noqa: E402
 from pipeline.render.stage import ZSTD_LEVEL, directory_bytes, video_attributes  # noqa: E402
 from pipeline.runtime.executor import UnitFailedError  # noqa: E402
 from pipeline.scenes.scene import Scene, SceneObject  # noqa: E402
@@ -46,6 +55,10 @@ TARGET_FPS = 30.0
 TARGET_SPEEDUP = 3.0
 TARGET_PEAK_GIB = 2.0
 TARGET_KB_PER_FRAME = 150.0
+# Issue 31, CPU time per frame against warm Mitsuba 3 (llvm_ad_rgb, same threads, same poses, same run).
+TARGETS_VS_MITSUBA = {"ambient_vs_direct1": 2.0, "spot_direct_vs_direct1": 1.5, "cast_depth_ids_vs_aov": 2.0}
+MITSUBA_RENDERS = [{"name": "direct1", "integrator": "direct", "samples": 1},
+                   {"name": "aov", "integrator": "aov", "samples": 1, "aovs": "depth:depth,id:shape_index"}]
 EXPOSURE = 4.0  # a fixed exposure (20 W light: white at 1 m ~ full scale)
 
 
@@ -139,8 +152,9 @@ def _box(low: np.ndarray, high: np.ndarray, cells: int) -> tuple[np.ndarray, np.
     return np.concatenate(vertices), np.concatenate(faces)
 
 
-def planned_poses(frames: int, folder: Path) -> tuple[Scene, np.ndarray, str]:
-    """The detail-1.0 house and real trajectories from the shard and plan stages (run inline, no Ray).
+def planned_poses(frames: int, folder: Path, detail: float = 1.0) -> tuple[Scene, np.ndarray, str]:
+    """The house of `detail` (1.0: the bench house, ~1 M triangles; 0.1: the 1 % job's) and real trajectories
+    from the shard and plan stages (run inline, no Ray).
 
     Returns the scene, (N, 4, 4) poses (the planned videos at 1.0 m, concatenated, at least `frames`
     when the plan finds enough) and a description. Raises UnitFailedError when a stage fails.
@@ -152,7 +166,7 @@ def planned_poses(frames: int, folder: Path) -> tuple[Scene, np.ndarray, str]:
     from pipeline.stages import make_stage
 
     job = Job(name="bench-render", seed=0, embodiments=[Embodiment(name="bench", placements=[1.0])],
-              scenes=SceneSources(procedural=ProceduralSource(count=1, seed=0, detail=1.0)),
+              scenes=SceneSources(procedural=ProceduralSource(count=1, seed=0, detail=detail)),
               plan=PlanConfig(trajectories_per_scene=4, min_frames=100, max_frames=600))
     run = RunFolder.create(folder / "run", job)
     for name in ("shard", "plan"):
@@ -398,6 +412,137 @@ def _pyrender_frame(pyrender: Any, renderer: Any, pr_scene: Any, colour_node: An
          | labels[..., 2].astype(np.uint32) << 16, np.rint(depth * 1000).astype(np.uint16), color)
 
 
+# ------------------------------------------------------------------------------ against Mitsuba 3
+
+
+def cast_depth_ids(scene: Scene, poses: np.ndarray, threads: int) -> dict[str, float]:
+    """Wall and CPU seconds per frame of the primary cast, the depth buffer (mm) and the panoptic ids: what
+    Mitsuba's AOV integrator (depth + shape id) computes. Warmed by one frame, like `run_ours`."""
+    body = spot_body()
+    renderer = VideoRenderer(scene, body.model_copy(update={"illumination": Illumination()}), 1.0,
+                             raycaster=SceneRaycaster(scene, threads=threads))
+    sensor, labels = body.sensor, renderer.labels
+    fused = getattr(renderer_module, "_depth_and_labels", None)  # the renderer's one pass (absent before issue 31)
+    shape = (sensor.height, sensor.width)
+    millimetres, panoptic, dense = np.empty(shape, np.uint16), np.empty(shape, np.uint32), np.empty(shape, np.int32)
+
+    def depth_and_ids(hits: Any) -> None:
+        if fused is None:  # what the renderer did before: whole-array passes (without its dense labels)
+            depth_to_millimetres(hits.depth, sensor.near, sensor.far)
+            np.take(labels.object_ids, hits.face, mode="clip")
+        else:  # the renderer's own pass (it also writes the dense labels)
+            fused(hits.depth, hits.face, np.float32(sensor.near), np.float32(sensor.far), labels.object_ids,
+                  labels.dense_of_face, millimetres, panoptic, dense)
+
+    depth_and_ids(renderer.trace(poses[0]))
+    started, cpu_started = time.perf_counter(), time.process_time()
+    for pose in poses:
+        depth_and_ids(renderer.trace(pose))
+    return {"wall_s": (time.perf_counter() - started) / len(poses), "cpu_s": (time.process_time() - cpu_started) / len(poses)}
+
+
+def child_ours(folder: Path, threads: int) -> None:
+    """One turn of ours (run in a process of its own, on the pipeline of MVPD_TREE): ambient and direct-only
+    spot end to end, and cast + depth + ids; writes `ours.json` in `folder`."""
+    scene, poses = pickle.loads((folder / "house.pkl").read_bytes())
+    body = spot_body()
+    # Warm every kernel of the loop (run_ours warms the cast and buffers, not the segments and the writer).
+    run_ours(scene, poses[:2], body, EXPOSURE, folder / "warm.zarr", threads=threads)
+    shutil.rmtree(folder / "warm.zarr", ignore_errors=True)
+    timings = {}
+    for name, embodiment, exposure in (("ambient", body.model_copy(update={"illumination": Illumination()}), 1.0),
+                                       ("spot_direct", body, EXPOSURE)):
+        store = folder / f"{name}.zarr"
+        run = run_ours(scene, poses, embodiment, exposure, store, threads=threads)
+        shutil.rmtree(store, ignore_errors=True)
+        timings[name] = {"wall_s": run["total_s"] / len(poses), "cpu_s": run["cpu_s"] / len(poses),
+                         "bytes_per_frame": run["bytes"] / len(poses)}
+    timings["cast_depth_ids"] = cast_depth_ids(scene, poses, threads)
+    import pipeline
+
+    (folder / "ours.json").write_text(json.dumps({**timings, "tree": str(Path(pipeline.__file__).parents[1])}))
+
+
+def turn_of_ours(tree: Path, folder: Path, threads: int) -> dict[str, Any]:
+    """`child_ours` on the pipeline of `tree`, in a fresh process (numba's cache warm, kernels loaded anew)."""
+    env = {**os.environ, "MVPD_TREE": str(tree), "OMP_NUM_THREADS": str(threads)}
+    subprocess.run([sys.executable, __file__, "--child", str(folder), "--threads", str(threads)], check=True, env=env,
+                   cwd=tree)
+    return json.loads((folder / "ours.json").read_text())
+
+
+def turn_of_mitsuba(python: str, folder: Path) -> dict[str, Any] | None:
+    """Mitsuba 3 direct 1 spp and AOV (depth + shape id) on the exported poses, warm (bench_light's peer)."""
+    from bench_light import run_peer
+
+    if not run_peer(python, "peer_mitsuba.py", folder, folder / "mitsuba.log"):
+        return None
+    runs = {render["name"]: np.load(folder / f"mitsuba_{render['name']}.npz") for render in MITSUBA_RENDERS}
+    return {name: {"wall_s": float(np.median(run["seconds"])), "cpu_s": float(np.median(run["cpu_seconds"]))}
+            for name, run in runs.items()}
+
+
+def summary(values: list[float]) -> dict[str, Any]:
+    """Median, min, max and every run, in milliseconds."""
+    ms = [round(1000 * v, 2) for v in values]
+    return {"median_ms": round(float(np.median(ms)), 2), "min_ms": min(ms), "max_ms": max(ms), "runs_ms": ms}
+
+
+def versus_mitsuba(frames: int, repeats: int, threads: int, baseline: Path | None, detail: float = 1.0) -> dict[str, Any]:
+    """Ours (this tree, and `baseline`'s when given) and warm Mitsuba 3 taking turns `repeats` times on the
+    same poses of the bench house: CPU and wall per frame, median of the turns with spread; ratios by CPU."""
+    from bench_light import export, mitsuba_python, peer_version
+
+    folder = Path(tempfile.mkdtemp(prefix="bench_render_mitsuba_"))
+    try:
+        scene, all_poses, pose_source = planned_poses(frames, folder, detail)
+        poses = spread(all_poses, frames)
+        (folder / "house.pkl").write_bytes(pickle.dumps((scene, poses)))
+        export(scene, poses, folder / "peer", [], MITSUBA_RENDERS, threads)
+        trees = {"ours": Path(__file__).resolve().parents[1], **({"baseline": baseline} if baseline else {})}
+        python = mitsuba_python()
+        turns: dict[str, list[dict[str, Any]]] = {name: [] for name in [*trees, "mitsuba"]}
+        loads = []
+        for _ in range(repeats):  # every side takes one turn per round, so drifts of the load fall on all alike
+            for name, tree in trees.items():
+                loads.append(os.getloadavg()[0])
+                turns[name].append(turn_of_ours(tree, folder, threads))
+            if python is not None:
+                loads.append(os.getloadavg()[0])
+                mitsuba = turn_of_mitsuba(python, folder / "peer")
+                python = python if mitsuba is not None else None
+                if mitsuba is not None:
+                    turns["mitsuba"].append(mitsuba)
+        loads.append(os.getloadavg()[0])
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    table = {name: {kind: {clock: summary([turn[kind][f"{clock}_s"] for turn in runs]) for clock in ("cpu", "wall")}
+                    for kind in runs[0] if kind != "tree"} for name, runs in turns.items() if runs}
+    for name in trees:
+        for kind in ("ambient", "spot_direct"):
+            table[name][kind]["kb_per_frame"] = round(turns[name][0][kind]["bytes_per_frame"] / 1000, 1)
+    result: dict[str, Any] = {
+        "scene": {"triangles": scene.triangle_count, "detail": detail, "poses": pose_source}, "frames": len(poses),
+        "resolution": [640, 480], "threads": threads, "repeats": repeats,
+        "peers": {"mitsuba": peer_version(python, "mitsuba"), "variant": "llvm_ad_rgb", "renders": MITSUBA_RENDERS},
+        "load_1m": {"min": min(loads), "max": max(loads), "each_turn": loads},
+        "trees": {name: turns[name][0]["tree"] for name in trees}, "per_frame": table}
+    if "mitsuba" in table:
+        result["ratios_by_cpu"] = {name: _ratios(table[name], table["mitsuba"]) for name in trees}
+        result["targets"] = {key: {"target": target, "met": result["ratios_by_cpu"]["ours"][key] >= target}
+                             for key, target in TARGETS_VS_MITSUBA.items()}
+    return result
+
+
+def _ratios(ours: dict[str, Any], mitsuba: dict[str, Any]) -> dict[str, float]:
+    """How many times less CPU per frame ours needs than Mitsuba (medians)."""
+    def ratio(theirs: str, mine: str) -> float:
+        return round(mitsuba[theirs]["cpu"]["median_ms"] / ours[mine]["cpu"]["median_ms"], 2)
+
+    return {"ambient_vs_direct1": ratio("direct1", "ambient"), "spot_direct_vs_direct1": ratio("direct1", "spot_direct"),
+            "cast_depth_ids_vs_aov": ratio("aov", "cast_depth_ids")}
+
+
 # ---------------------------------------------------------------------------------------- main
 
 
@@ -412,7 +557,31 @@ def main() -> None:
                         help="also measure one 1-thread worker process per CPU rendering at the same time")
     parser.add_argument("--primary-only", action="store_true", help="only the z-buffer against the Embree cast "
                         "(agreement, CPU and wall); writes results/render_primary.json")
+    parser.add_argument("--vs-mitsuba", action="store_true", help="only ours against warm Mitsuba 3 (direct 1 spp, "
+                        "AOV), interleaved, --repeats turns of --frames poses; writes results/render_vs_mitsuba.json")
+    parser.add_argument("--baseline", type=Path, help="with --vs-mitsuba: also time this checkout's pipeline (an "
+                        "older commit's worktree) in the same turns")
+    parser.add_argument("--threads", type=int, default=2, help="threads of ours and Mitsuba in --vs-mitsuba")
+    parser.add_argument("--detail", type=float, default=1.0, help="with --vs-mitsuba: the house's detail (0.1: the 1 %% "
+                        "job's houses, for bench_scaling's calibrated cost model); results/render_vs_mitsuba_detail<d>.json")
+    parser.add_argument("--child", type=Path, help=argparse.SUPPRESS)  # one turn of ours (versus_mitsuba)
     args = parser.parse_args()
+
+    if args.child:
+        child_ours(args.child, args.threads)
+        return
+    if args.vs_mitsuba:
+        result = versus_mitsuba(args.frames, args.repeats, args.threads, args.baseline, args.detail)
+        suffix = "" if args.detail == 1.0 else f"_detail{args.detail:g}"
+        out = Path(__file__).resolve().parent / "results" / f"render_vs_mitsuba{suffix}.json"
+        out.write_text(json.dumps(result, indent=1) + "\n")
+        print(json.dumps({k: v for k, v in result.items() if k != "per_frame"}, indent=1))
+        for name, kinds in result["per_frame"].items():
+            for kind, clocks in kinds.items():
+                print(f"{name:9s} {kind:15s} CPU {clocks['cpu']['median_ms']:7.2f} ms ({clocks['cpu']['min_ms']}-"
+                      f"{clocks['cpu']['max_ms']})  wall {clocks['wall']['median_ms']:7.2f} ms")
+        print(f"wrote {out}")
+        return
 
     folder = Path(tempfile.mkdtemp(prefix="bench_render_"))
     if args.primary_only:

@@ -4,7 +4,8 @@ Run by bench_light.py as `/work/venvs/mitsuba/bin/python benchmarks/peer_mitsuba
 `bash benchmarks/setup_light_peers.sh` (on Debian 12 Dr.Jit's LLVM backend needs apt's `libllvm19`, found
 through DRJIT_LIBLLVM_PATH). Reads the same FOLDER as peer_cycles.py (`scene.npz`, `poses.npy`,
 `settings.json`) and writes `mitsuba_<name>.npz` (images (N, H, W, 3) float32 linear radiance, seconds
-per frame, and CPU seconds of the process per frame) for each entry of `settings["mitsuba"]`: integrator `direct` or `path`, samples per pixel.
+per frame, and CPU seconds of the process per frame) for each entry of `settings["mitsuba"]`: integrator `direct` or `path`, samples per pixel;
+an entry with `aovs` (e.g. "depth:depth,id:shape_index") renders those AOVs instead (the `aov` integrator: bench_render.py).
 
 The light is Mitsuba's `spot` with our intensity I = P / Omega (W/sr) and a 90-degree cutoff; its falloff is
 linear in angle (Mitsuba's), not Blender's smoothstep, so its pixels are compared for speed, not for light.
@@ -57,7 +58,8 @@ def render_all(folder: Path, settings: dict, mesh: mi.Mesh, poses: np.ndarray, r
                    "sampler": {"type": "independent", "sample_count": render["samples"]}},
         "spot": {"type": "spot", "intensity": {"type": "rgb", "value": [intensity] * 3},
                  "cutoff_angle": min(89.9, settings["cone"] / 2.0), "beam_width": 0.0},
-        "integrator": {"type": render["integrator"], **({"max_depth": render["max_depth"]} if "max_depth" in render else {})},
+        "integrator": ({"type": "aov", "aovs": render["aovs"]} if "aovs" in render else
+                       {"type": render["integrator"], **({"max_depth": render["max_depth"]} if "max_depth" in render else {})}),
     })
     params = mi.traverse(scene)
     camera_key = next(key for key in params.keys() if key.endswith("to_world") and "camera" in key)
@@ -74,7 +76,7 @@ def render_all(folder: Path, settings: dict, mesh: mi.Mesh, poses: np.ndarray, r
         if index > 0:
             seconds.append(time.perf_counter() - started)
             cpu_seconds.append(time.process_time() - cpu_started)
-            images.append(image[..., :3])
+            images.append(image[..., :3])  # (an AOV render has as many channels as AOVs)
     np.savez(folder / f"mitsuba_{render['name']}.npz", images=np.stack(images), seconds=np.array(seconds),
              cpu_seconds=np.array(cpu_seconds))
     print(f"mitsuba {render['name']}: {np.median(seconds):.3f} s per frame", flush=True)

@@ -11,6 +11,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
 from pipeline.config import Embodiment
@@ -18,7 +19,7 @@ from pipeline.lazy_import import lazy_module
 from pipeline.render.indirect import IndirectGather, VirtualLights
 from pipeline.render.lighting import Shader, SurfaceColors
 from pipeline.render.raycaster import Camera, RayHits, SceneRaycaster, row_bands, thread_pool
-from pipeline.render.sensors import StructuredLightModel, depth_to_millimetres, sensor_model
+from pipeline.render.sensors import UINT16_MAX_MM, StructuredLightModel, depth_to_millimetres, sensor_model
 from pipeline.scenes.scene import Scene
 
 zarr = lazy_module("zarr")  # loaded on first use: only a rendering worker sizes its pool
@@ -157,10 +158,27 @@ class VideoRenderer:
         hits = hits.rows(rows)
         sensor = self.embodiment.sensor
         shader.shade_surfaces(self.colors, hits, out=frame.rgb[rows], indirect=indirect)
-        frame.depth[rows] = depth_to_millimetres(hits.depth, sensor.near, sensor.far)
-        # A miss (face F) picks the trailing 0 (void) of both tables; "clip" writes straight into `out`.
-        np.take(self.labels.object_ids, hits.face, out=frame.panoptic[rows], mode="clip")
-        np.take(self.labels.dense_of_face, hits.face, out=frame.dense[rows], mode="clip")  # type: ignore[index]
+        _depth_and_labels(hits.depth, hits.face, np.float32(sensor.near), np.float32(sensor.far), self.labels.object_ids,
+                          self.labels.dense_of_face, frame.depth[rows], frame.panoptic[rows], frame.dense[rows])
+
+
+@numba.njit(nogil=True, cache=True)
+def _depth_and_labels(depth, face, near, far, object_ids, dense_of_face, millimetres, panoptic,
+                      dense):  # pragma: no cover (compiled)
+    """One pass over a band's pixels for what three whole-array passes did: `depth_to_millimetres(depth, near,
+    far)` (its float32 arithmetic and comparisons exactly: NumPy compares float32 depths with near and far
+    as float32), and each pixel's panoptic id and dense label (`np.take(..., mode="clip")`: a miss, face F,
+    picks the trailing 0 (void) of both tables)."""
+    last = len(object_ids) - 1
+    for row in range(depth.shape[0]):
+        for column in range(depth.shape[1]):
+            z = depth[row, column]
+            value = np.rint(z * np.float32(1000.0))  # inf and NaN stay non-finite and fail every test below
+            keep = z >= near and z <= far and value > np.float32(0.0) and value <= np.float32(UINT16_MAX_MM)
+            millimetres[row, column] = np.uint16(value) if keep else np.uint16(0)
+            f = min(max(face[row, column], 0), last)
+            panoptic[row, column] = object_ids[f]
+            dense[row, column] = dense_of_face[f]
 
 
 @functools.cache

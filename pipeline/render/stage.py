@@ -40,7 +40,10 @@ if TYPE_CHECKING:
 RENDER_ALGORITHM_VERSION = 5
 # zstd level of the Zarr arrays. Measured on the detail-1.0 house at 640x480, zstd alone per frame
 # (rgb + depth + panoptic; spot / ambient light): level 1: 154 / 79 kB, 2.5 / 1.4 ms (over the 150 kB
-# budget); 3: 146 / 75 kB, 3.1 / 1.7 ms; 5: 128 / 67 kB, 7.4 / 5.6 ms. Zarr's own work adds ~2-3 ms.
+# budget); 3: 146 / 75 kB, 3.1 / 1.7 ms; 5: 128 / 67 kB, 7.4 / 5.6 ms. Zarr's own work added ~2-3 ms, which
+# VideoWriter now skips for whole shards (it writes Zarr's bytes itself). Blosc loses on 32 ambient bench frames
+# (issue 31): zstd 3 82.6 kB; Blosc zstd 3 + byte shuffle 86.7 kB at 1.8x its CPU; zstd 1 + shuffle 121 kB;
+# lz4 + shuffle 169 kB; zstd 1 + bit shuffle 186 kB (Blosc's blocks and shuffled bytes suit images less).
 # Spot light with indirect bounces (render version 5, 16 bench poses, level 3): 179 kB (rgb 165) / 103 kB,
 # over the budget; level 5 brings its rgb to 150 kB at ~2.4x the encode time (left at 3: the frame's CPU).
 ZSTD_LEVEL = 3

@@ -92,3 +92,24 @@ def test_wrong_dtype_or_shape_or_count_is_refused(tmp_path: Path) -> None:
 def test_open_video_names_a_missing_store(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="not a Zarr video store"):
         open_video(tmp_path / "missing.zarr")
+
+
+def test_whole_shards_are_written_byte_for_byte_as_zarr_writes_them(tmp_path: Path) -> None:
+    """The writer encodes whole shards itself (zarr's codec pipeline costs more than zstd): every file of
+    the store must equal what Zarr writes through `array[...] = block`, all-zero frames and a partial last
+    shard included, and read back the same."""
+    frames = _frames(10, seed=3)
+    frames[1] = {name: np.zeros_like(value) for name, value in frames[1].items()}  # an all-zero chunk is stored too
+    _write(tmp_path / "ours.zarr", frames)
+    writer = VideoWriter(tmp_path / "zarr.zarr", 10, 8, 6, {"video_name": "v", "poses": np.tile(np.eye(4), (10, 1, 1)).tolist(),
+                                                          "intrinsics": {"fx": 1.0, "fy": 1.0, "cx": 4.0, "cy": 3.0}},
+                         frames_per_shard=4)
+    for name, array in writer.arrays.items():
+        array[:] = np.stack([frame[name] for frame in frames])  # Zarr's own sharding codec
+    ours = sorted(p.relative_to(tmp_path / "ours.zarr") for p in (tmp_path / "ours.zarr").rglob("*") if p.is_file())
+    theirs = sorted(p.relative_to(tmp_path / "zarr.zarr") for p in (tmp_path / "zarr.zarr").rglob("*") if p.is_file())
+    assert ours == theirs and len(ours) == 1 + 3 * (1 + 3)  # the group's zarr.json; per array its own and 3 shards
+    for relative in ours:
+        assert (tmp_path / "ours.zarr" / relative).read_bytes() == (tmp_path / "zarr.zarr" / relative).read_bytes(), relative
+    video = open_video(tmp_path / "ours.zarr")
+    assert np.array_equal(video.rgb[:], np.stack([f["rgb"] for f in frames]))

@@ -6,7 +6,8 @@ import numpy as np
 
 from pipeline.io.segments import frame_segments
 from pipeline.render.camera import pixels_inside, project, unproject
-from pipeline.render.renderer import VideoRenderer
+from pipeline.render.renderer import VideoRenderer, _depth_and_labels
+from pipeline.render.sensors import depth_to_millimetres
 from tests.render.tiny_scenes import CHAIR, TABLE, embodiment, look_at, room_scene
 
 
@@ -121,3 +122,23 @@ def test_several_threads_render_the_bytes_of_one_with_indirect_light() -> None:
         renderer = VideoRenderer(scene, body, exposure=2.0, raycaster=SceneRaycaster(scene, threads=threads), seed=3)
         frames.append([renderer.render(pose).rgb.copy() for pose in _poses(3)])
     assert all(a.tobytes() == b.tobytes() for a, b in zip(*frames)) and frames[0][1].any()
+
+
+def test_depth_and_labels_in_one_pass_equal_the_numpy_passes() -> None:
+    """The band's fused pass gives the bytes of depth_to_millimetres and the two clipped look-ups, at the
+    edges that differ between float32 and float64 arithmetic: depths at near and far, a near that float32
+    rounds down, half millimetres, the uint16 limit, inf, NaN, negatives; faces of misses (F) and beyond."""
+    rng = np.random.default_rng(5)
+    near, far = 0.3000000119, 65.5355  # float32(near) < near: NumPy compares float32 depths with float32(near)
+    special = np.array([np.float32(0.3), np.float32(near), 0.0005, 0.0015, 65.5345, 65.5355, 65.536, np.inf, np.nan,
+                        -1.0, np.nextafter(np.float32(far), np.float32(0)), 1.2345], np.float32)
+    depth = np.concatenate([special, rng.uniform(0, 70, 500).astype(np.float32)]).reshape(8, -1)
+    faces = rng.integers(0, 12, depth.shape).astype(np.intp)  # 10 faces: 10 is the miss, 11 beyond the table
+    object_ids = np.append(rng.integers(1, 2**32, 10, dtype=np.uint32), np.uint32(0))
+    dense_of_face = np.append(rng.integers(1, 9, 10).astype(np.int32), np.int32(0))
+    millimetres, panoptic, dense = np.empty(depth.shape, np.uint16), np.empty(depth.shape, np.uint32), np.empty(depth.shape, np.int32)
+    _depth_and_labels(depth, faces, np.float32(near), np.float32(far), object_ids, dense_of_face, millimetres, panoptic, dense)
+    assert np.array_equal(millimetres, depth_to_millimetres(depth, near, far))
+    assert np.array_equal(panoptic, np.take(object_ids, faces, mode="clip"))
+    assert np.array_equal(dense, np.take(dense_of_face, faces, mode="clip"))
+    assert millimetres[0, 0] == 300 and millimetres[0, 4] == 65534  # float32(near) kept; 65534.5 mm rounds to even
