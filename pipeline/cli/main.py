@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 if __name__ == "__main__":  # `python -m pipeline.cli.main`: a signal during the imports below is one line too
-    from pipeline.cli.signals import exit_on_signals_while_starting
+    from pipeline.cli.signals import exit_on_signals_while_starting, run_command_line
 
     exit_on_signals_while_starting()
 
@@ -42,4 +42,4 @@ for area in (run_commands, scenes, plan, render, evaluate, mvpd_io, models, view
 
 
 if __name__ == "__main__":
-    app()
+    run_command_line(app)

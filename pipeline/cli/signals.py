@@ -18,6 +18,7 @@ from __future__ import annotations
 import atexit
 import os
 import signal
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -32,6 +33,23 @@ def _exit_at_once(signum: int, frame: FrameType | None) -> None:
     """Say why in one line and exit 128 + signum, without unwinding (no command is running)."""
     os.write(2, (_LINES[signum] + "\n").encode())
     os._exit(128 + signum)
+
+
+def run_command_line(app: Callable[[], object]) -> None:
+    """Run the `mvpd` app (it ends in SystemExit). A command stopped by a signal (exit 130 / 143) then exits
+    once the exit callbacks ran (Ray's shutdown, logging's flush) but without the interpreter's teardown:
+    a native thread the stop interrupted (DuckDB's query worker, a Ray call) may still be unwinding, and
+    finalizing Python under it aborted the process now and then (SIGABRT, "FATAL: exception not rethrown")
+    after the one line was printed, so the exit code was -6 instead of 130 / 143."""
+    try:
+        app()
+    except SystemExit as done:
+        if done.code in (128 + signal.SIGINT, 128 + signal.SIGTERM):
+            for stream in (sys.stdout, sys.stderr):
+                stream.flush()
+            atexit._run_exitfuncs()
+            os._exit(done.code)
+        raise
 
 
 def _in_main_thread() -> bool:

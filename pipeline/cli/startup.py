@@ -5,9 +5,7 @@ Importing the commands takes a second or more; a Ctrl-C meanwhile is one line, n
 
 from __future__ import annotations
 
-import sys
-
-from pipeline.cli.signals import exit_on_signals_while_starting
+from pipeline.cli.signals import exit_on_signals_while_starting, run_command_line
 
 
 def main() -> None:
@@ -15,4 +13,4 @@ def main() -> None:
     exit_on_signals_while_starting()
     from pipeline.cli.main import app
 
-    sys.exit(app())
+    run_command_line(app)

@@ -186,8 +186,8 @@ def query(run: RunFolder, sql: str, timeout_s: float | None = DEFAULT_TIMEOUT_S,
 
     worker = threading.Thread(target=execute, name="mvpd-query", daemon=True)
     deadline = time.monotonic() + timeout_s if timeout_s else math.inf
-    worker.start()
     try:
+        worker.start()  # inside the try: a signal during start() must still interrupt and join the worker
         while worker.is_alive() and time.monotonic() < deadline:
             worker.join(0.05)  # a short wait: signal handlers run between waits
     finally:

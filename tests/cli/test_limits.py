@@ -160,6 +160,20 @@ def test_the_mvpd_script_is_the_thin_entry_point():
     assert scripts["mvpd"] == "pipeline.cli.startup:main"
 
 
+@pytest.mark.parametrize("code", [130, 143, 2, 0])
+def test_a_stopped_command_exits_with_its_code_after_the_exit_callbacks(tmp_path, code):
+    """run_command_line: a command stopped by a signal (130 / 143) skips the interpreter's teardown (where a
+    native thread still unwinding aborted the process) but not the exit callbacks (Ray's shutdown, logging);
+    every other exit is Python's own."""
+    marker = tmp_path / "callbacks-ran"
+    script = (f"import atexit\nfrom pipeline.cli.signals import run_command_line\n"
+              f"atexit.register(lambda: open({str(marker)!r}, 'w').close())\n"
+              f"def app():\n    raise SystemExit({code})\nrun_command_line(app)\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == code and done.stderr == ""
+    assert marker.exists()
+
+
 @pytest.mark.parametrize("entry", ENTRY_POINTS)
 @pytest.mark.parametrize("sent, code, words", [(signal.SIGINT, 130, "interrupted (Ctrl-C)"),
                                                (signal.SIGTERM, 143, "SIGTERM")])
