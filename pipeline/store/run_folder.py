@@ -110,11 +110,13 @@ class RunFolder:
     def save_job(self, job: Job) -> None:
         self.files.save_job(yaml.safe_dump({"job_hash": job.hash(), "job": job.resolved()}, sort_keys=False))
 
+    def job_text(self) -> str:
+        """The run's job file as written by `save_job` (read without following a link on local disk)."""
+        return self.files.read_job() if isinstance(self.files, LocalFiles) else (self.root / JOB_FILE).read_text()
+
     def job(self) -> Job:
         try:
-            data = load_yaml(self.files.read_job() if isinstance(self.files, LocalFiles)
-                              else (self.root / JOB_FILE).read_text())
-            return job_from_resolved(data["job"])
+            return job_from_resolved(self._job_document()["job"])
         except yaml.YAMLError as error:
             raise ConfigError(f"{self.root / JOB_FILE}: not valid YAML ({' '.join(str(error).split())}); "
                               "resubmit the job") from None
@@ -122,6 +124,16 @@ class RunFolder:
             raise ConfigError(f"{self.root / JOB_FILE}: cannot be read ({error_text(error)}); resubmit the job") from None
         except (KeyError, TypeError, ValueError) as error:
             raise ConfigError(f"{self.root / JOB_FILE}: unreadable resolved job ({error}); resubmit the job") from None
+
+    def job_hash(self) -> str:
+        """The job hash `save_job` recorded beside the resolved job."""
+        return str(self._job_document().get("job_hash", ""))
+
+    def _job_document(self) -> dict:
+        document = load_yaml(self.job_text())
+        if not isinstance(document, dict):
+            raise TypeError("the job file is not a mapping")
+        return document
 
     # --------------------------------------------------------------------------------- lock
     @contextmanager

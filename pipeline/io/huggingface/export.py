@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
 
 from pipeline.io.huggingface.card import (DATA, JOB_COPY, LICENCE_FILE, CardFacts, SplitFacts, card_text,
                                           licence_notice)
@@ -30,7 +29,6 @@ from pipeline.io.huggingface.features import VideoFacts, dataset_features, frame
 from pipeline.io.huggingface.shards import ROWS_PER_GROUP, SHARD_BYTES, ShardWriter
 from pipeline.io.mvpd.export import READ_BLOCK, swap_into_place
 from pipeline.io.reader import LoadedVideo, load_video
-from pipeline.store.names import JOB_FILE
 from pipeline.store.run_folder import RunFolder
 
 log = logging.getLogger(__name__)
@@ -107,9 +105,9 @@ def export_hf_dataset(run: RunFolder, out: Path, split: str | None = None, embod
         for name, videos in splits.items():
             written[name] = _write_split(run, staging / DATA, name, videos, videos_table, unseen, schema,
                                          rows_per_group, shard_bytes, on_video)
-        facts = CardFacts(run.job(), _job_hash(run), _code_versions(run), _exporter_version(), features, written,
+        facts = CardFacts(run.job(), run.job_hash(), _code_versions(run), _exporter_version(), features, written,
                           has_split(run), height, width, _scene_sources(run))
-        shutil.copyfile(run.root / JOB_FILE, staging / JOB_COPY)
+        (staging / JOB_COPY).write_text(run.job_text(), encoding="utf-8")
         (staging / CARD).write_text(card_text(facts), encoding="utf-8")
         (staging / LICENCE_FILE).write_text(licence_notice(facts), encoding="utf-8")
         swap_into_place(staging, out)
@@ -260,11 +258,6 @@ def _video_facts(entry: ExportedVideo, video: LoadedVideo, row: dict[str, Any],
 
 
 # ---------------------------------------------------------------------------------- provenance
-
-
-def _job_hash(run: RunFolder) -> str:
-    """The job hash the run recorded in its job file."""
-    return str(yaml.safe_load((run.root / JOB_FILE).read_text(encoding="utf-8")).get("job_hash", ""))
 
 
 def _code_versions(run: RunFolder) -> list[str]:
