@@ -113,9 +113,8 @@ def _segment_list(segs_path: Path) -> np.ndarray:
     values = segs.get("segIndices") if isinstance(segs, dict) else None
     if not isinstance(values, list):
         raise SceneError(f"{segs_path}: no segIndices list; re-download the scene")
-    bad = next((k for k, v in enumerate(values) if type(v) is not int or not INT64_MIN <= v <= INT64_MAX), None)
-    if bad is not None:
-        integer_field(values[bad], f"{segs_path}:segIndices[{bad}]", INT64_MIN, INT64_MAX)
+    if not all(type(v) is int and INT64_MIN <= v <= INT64_MAX for v in values):  # each entry checked, not the first odd one
+        values = [integer_field(v, f"{segs_path}:segIndices[{k}]", INT64_MIN, INT64_MAX) for k, v in enumerate(values)]
     return np.array(values, np.int64)
 
 

@@ -399,6 +399,7 @@ def test_malformed_scannet_metadata_fails_in_one_line(scannet_scene: Path, tmp_p
     (b'{"segIndices": [1, 2, 99999999999999999999999]}', r"segIndices\[2\]: 99999999999999999999999 is outside"),
     (b'{"segIndices": [[1, 2], [3, 4]]}', r"segIndices\[0\]: \[1, 2\] is not an integer"),
     (b'{"segIndices": [1.5, 2]}', r"segIndices\[0\]: 1\.5 is not an integer"),
+    (b'{"segIndices": [3.0, "x"]}', r"segIndices\[1\]: 'x' is not an integer"),  # an odd entry after a whole float
     (b'{"segIndices": 5}', r"no segIndices list"),
     (b'{"segIndices": [' + b"[" * 50000 + b"]" * 50000 + b"]}", r"JSON nested too deeply"),
 ])
