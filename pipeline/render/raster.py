@@ -291,15 +291,17 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
     left, right = rect[2], rect[3]
     if a[2] <= 0.0 and b[2] <= 0.0 and c[2] <= 0.0:
         return  # behind the camera
-    if a[2] > _BEHIND and b[2] > _BEHIND and c[2] > _BEHIND:  # tighter rows and columns from the projection
-        y_low = min(a[1] / a[2], b[1] / b[2], c[1] / c[2])
-        y_high = max(a[1] / a[2], b[1] / b[2], c[1] / c[2])
-        x_low = min(a[0] / a[2], b[0] / b[2], c[0] / c[2])
-        x_high = max(a[0] / a[2], b[0] / b[2], c[0] / c[2])
-        top = max(top, int(np.floor((y_low - pixel_y[0]) * fy)))
-        bottom = min(bottom, int(np.ceil((y_high - pixel_y[0]) * fy)))
-        left = max(left, int(np.floor((x_low - pixel_x[0]) * fx)))
-        right = min(right, int(np.ceil((x_high - pixel_x[0]) * fx)))
+    if a[2] > _BEHIND and b[2] > _BEHIND and c[2] > _BEHIND:
+        # The rows and columns whose pixel centres lie within SPAN_MARGIN of the projection's bounding box
+        # (the corners' projections err by ~1e-16 of themselves, far below the margin; see the spans below):
+        # most triangles of a detailed mesh are a pixel or smaller and hold no pixel centre at all.
+        inverse_a, inverse_b, inverse_c = 1.0 / a[2], 1.0 / b[2], 1.0 / c[2]
+        ya, yb, yc = a[1] * inverse_a, b[1] * inverse_b, c[1] * inverse_c
+        xa, xb, xc = a[0] * inverse_a, b[0] * inverse_b, c[0] * inverse_c
+        top = max(top, int(np.ceil((min(ya, yb, yc) - pixel_y[0]) * fy - SPAN_MARGIN)))
+        bottom = min(bottom, int(np.floor((max(ya, yb, yc) - pixel_y[0]) * fy + SPAN_MARGIN)))
+        left = max(left, int(np.ceil((min(xa, xb, xc) - pixel_x[0]) * fx - SPAN_MARGIN)))
+        right = min(right, int(np.floor((max(xa, xb, xc) - pixel_x[0]) * fx + SPAN_MARGIN)))
         if top > bottom or left > right:
             return
         if _occluded((top, bottom, left, right), min(a[2], b[2], c[2]), row_start, row_stop, inverse_depth, tiles, dirty):
