@@ -37,6 +37,8 @@ class ClusteredMesh:
         corners: (F, 3, 3) float32 triangle corners, cluster by cluster.
         face_ids: (F,) int64 index of each reordered triangle in the original mesh.
         starts: (C + 1,) first triangle of each cluster.
+        planes: (F, 4) float32 plane of each triangle: N and N . v0, N = (v1 - v0) x (v2 - v0) (which side
+            of it a camera lies on tells whether the triangle faces it, before its corners are transformed).
         low, high: (C, 3) float64 bounding boxes of the clusters.
     """
 
@@ -45,6 +47,10 @@ class ClusteredMesh:
         centres = corners.mean(axis=1, dtype=np.float64)
         self.face_ids = np.argsort(_morton_codes(centres), kind="stable")
         self.corners = np.ascontiguousarray(corners[self.face_ids])
+        edges = self.corners[:, 1:].astype(np.float64) - self.corners[:, :1]
+        normals = np.cross(edges[:, 0], edges[:, 1])
+        offsets = np.einsum("ij,ij->i", normals, self.corners[:, 0].astype(np.float64))
+        self.planes = np.concatenate([normals, offsets[:, None]], axis=1).astype(np.float32)
         self.starts = np.append(np.arange(0, len(faces), CLUSTER_SIZE), len(faces)).astype(np.int64)
         self.low = np.minimum.reduceat(self.corners.min(axis=1), self.starts[:-1]).astype(np.float64)
         self.high = np.maximum.reduceat(self.corners.max(axis=1), self.starts[:-1]).astype(np.float64)
@@ -105,7 +111,7 @@ class Rasterizer:
             shape = (-(-(rows.stop - rows.start) // TILE), -(-len(self.pixel_x) // TILE))
             self._scratch[band] = (np.empty(shape, np.float32), np.empty(shape, np.bool_),
                                    np.empty(len(self.mesh.corners), np.int64), np.empty_like(self.rects[:, :2]))
-        _draw(self.mesh.corners, self.mesh.starts, self.order, self.rank, self.rects, self.nearest,
+        _draw(self.mesh.corners, self.mesh.planes, self.mesh.starts, self.order, self.rank, self.rects, self.nearest,
               np.ascontiguousarray(camera_to_world, np.float64), self.pixel_x, self.pixel_y, *self.focal, rows.start,
               rows.stop, self.inverse_depth, self.winner, *self._scratch[band])
 
@@ -185,7 +191,7 @@ def _occluded(rect, nearest, row_start, row_stop, inverse_depth, tiles, dirty): 
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _draw(corners, starts, order, rank, rects, nearest, pose, pixel_x, pixel_y, fx, fy, row_start, row_stop,
+def _draw(corners, planes, starts, order, rank, rects, nearest, pose, pixel_x, pixel_y, fx, fy, row_start, row_stop,
           inverse_depth, winner, tiles, dirty, deferred, groups):  # pragma: no cover (compiled)
     """Z-buffer (by inverse planar depth 1/t, 0 = nothing) the triangles of the clusters in `order` into rows
     row_start..row_stop; `winner` gets the reordered index of the nearest triangle per pixel, or -1.
@@ -193,7 +199,8 @@ def _draw(corners, starts, order, rank, rects, nearest, pose, pixel_x, pixel_y, 
     Triangles facing away from the camera are drawn after all others: in a closed surface they lie behind
     one facing the camera, so by then most of them are occluded and never reach the pixel loop. A pixel's
     winner stays the one drawing in `order` gives (the nearest; of equal ones, the first in `order`), as
-    the second pass breaks ties by that order (`_drawn_before`). `deferred` (one slot per triangle) and
+    the second pass breaks ties by that order (`_drawn_before`): which pass draws a triangle changes no winner.
+    `deferred` (one slot per triangle) and
     `groups` (two per cluster) are scratch space for the facing-away triangles of each cluster."""
     width = len(pixel_x)
     for row in range(row_start, row_stop):
@@ -202,6 +209,7 @@ def _draw(corners, starts, order, rank, rects, nearest, pose, pixel_x, pixel_y, 
             winner[row, column] = -1
     tiles[:, :] = 0.0
     dirty[:, :] = False
+    ox, oy, oz = pose[0, 3], pose[1, 3], pose[2, 3]
     count = group_count = 0
     for cluster in order:
         rect = (rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3])
@@ -211,16 +219,18 @@ def _draw(corners, starts, order, rank, rects, nearest, pose, pixel_x, pixel_y, 
             continue
         group_start = count
         for triangle in range(starts[cluster], starts[cluster + 1]):
+            # Facing away when N . (v0 - o) > 0 (o: the camera centre), which is det(a, b, c) but for rounding:
+            # a triangle seen nearly edge-on may land in either pass, which changes no winner (see above).
+            if planes[triangle, 3] > planes[triangle, 0] * ox + planes[triangle, 1] * oy + planes[triangle, 2] * oz:
+                deferred[count] = triangle  # drawn in the second pass
+                count += 1
+                continue
             # Scalars, not a (3, 3) array and its row views: a triangle's setup is a few dozen flops, and
             # array views and a call per triangle cost as much again.
             a = _to_camera(corners, triangle, 0, pose)
             b = _to_camera(corners, triangle, 1, pose)
             c = _to_camera(corners, triangle, 2, pose)
             det = _determinant(a, b, c)
-            if det > 0.0:  # facing away (det = a . Ng, Ng the geometric normal): drawn in the second pass
-                deferred[count] = triangle
-                count += 1
-                continue
             _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop,
                            inverse_depth, winner, tiles, dirty, False, starts, rank)
         if count > group_start:
