@@ -27,6 +27,7 @@ import numpy as np
 CLUSTER_SIZE = 64  # triangles per cluster: small boxes cull well, and 16 k clusters per 1 M triangles test fast
 TILE = 8  # pixels per side of the occlusion tiles
 SPAN_MARGIN = 1e-3  # pixels: a row's columns are tested this far beyond its edges' zeros (see _draw_triangle)
+SMALL_BOX = 4  # pixels: a triangle's box of at most this many pixel centres is tested pixel by pixel
 _BEHIND = 1e-6  # metres: a cluster corner nearer than this to the camera plane makes the cluster cover the image
 
 
@@ -294,9 +295,6 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
     of a zero, which no test here tells apart), so this decides exactly as testing w * sign < 0 would."""
     if det == 0.0:
         return  # degenerate, or seen exactly edge-on
-    sign = 1.0 if det > 0.0 else -1.0
-    e0, e1, e2 = _edge(a, b, sign), _edge(b, c, sign), _edge(c, a, sign)
-    inverse_det = 1.0 / (det * sign)
     top, bottom = max(rect[0], row_start), min(rect[1], row_stop - 1)
     left, right = rect[2], rect[3]
     if a[2] <= 0.0 and b[2] <= 0.0 and c[2] <= 0.0:
@@ -314,8 +312,33 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
         right = min(right, int(np.floor((max(xa, xb, xc) - pixel_x[0]) * fx + SPAN_MARGIN)))
         if top > bottom or left > right:
             return
-        if _occluded((top, bottom, left, right), min(a[2], b[2], c[2]), row_start, row_stop, inverse_depth, tiles, dirty):
+        if (bottom - top + 1) * (right - left + 1) <= SMALL_BOX:
+            if _pixels_occluded(top, bottom, left, right, min(a[2], b[2], c[2]), inverse_depth):
+                return
+        elif _occluded((top, bottom, left, right), min(a[2], b[2], c[2]), row_start, row_stop, inverse_depth, tiles, dirty):
             return
+    sign = 1.0 if det > 0.0 else -1.0
+    e0, e1, e2 = _edge(a, b, sign), _edge(b, c, sign), _edge(c, a, sign)
+    inverse_det = 1.0 / (det * sign)
+    if (bottom - top + 1) * (right - left + 1) <= SMALL_BOX:
+        # Every pixel of a small box is tested: the spans below would skip only pixels that fail the test,
+        # and their three divisions cost more than the pixels.
+        for row in range(top, bottom + 1):
+            y = pixel_y[row]
+            r0, r1, r2 = e0[1] * y + e0[2], e1[1] * y + e1[2], e2[1] * y + e2[2]
+            for column in range(left, right + 1):
+                x = pixel_x[column]
+                w0, w1, w2 = e0[0] * x + r0, e1[0] * x + r1, e2[0] * x + r2
+                if w0 < 0.0 or w1 < 0.0 or w2 < 0.0:
+                    continue
+                depth = np.float32((w0 + w1 + w2) * inverse_det)  # 1 / t: the plane's N . d over det(a, b, c)
+                held = inverse_depth[row, column]
+                if depth > held or (tie_break and depth == held and held > 0.0
+                                    and _drawn_before(triangle, winner[row, column], starts, rank)):
+                    inverse_depth[row, column] = depth
+                    winner[row, column] = triangle
+                    dirty[(row - row_start) // TILE, column // TILE] = True
+        return
     # Each edge's value along a row is linear in x: e[0] x + r. Only the columns within SPAN_MARGIN of where
     # all three are >= 0 are tested. That skips no pixel the exact test would take: a skipped column x lies
     # more than SPAN_MARGIN / fx beyond the zero z of some edge, where the value is -|e[0]| |x - z|, while its
@@ -352,6 +375,17 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
                 inverse_depth[row, column] = depth
                 winner[row, column] = triangle
                 dirty[(row - row_start) // TILE, column // TILE] = True
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _pixels_occluded(top, bottom, left, right, nearest, inverse_depth):  # pragma: no cover (compiled)
+    """`_occluded` for a box of a few pixels (all in the band), pixel by pixel: cheaper than its tiles."""
+    closest = np.float32(1.0 / nearest * (1.0 + 1e-5))
+    for row in range(top, bottom + 1):
+        for column in range(left, right + 1):
+            if inverse_depth[row, column] < closest:
+                return False
+    return True
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")

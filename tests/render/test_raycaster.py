@@ -106,27 +106,23 @@ def test_the_z_buffer_finds_the_hits_of_the_ray_cast() -> None:
         assert np.array_equal(raster["direction"], rays["direction"])
 
 
-def test_the_z_buffer_winner_is_that_of_testing_every_triangle_at_every_pixel() -> None:
-    """The pixel spans, the occlusion culling and the second pass for facing-away triangles only skip work:
-    each pixel's winner is what the bare test gives for every triangle at every pixel (edge values with the
-    sign of det(a, b, c) all >= 0, the largest float32 1 / t, ties to the first in the drawing order). Random
-    triangles with slivers, coincident pairs of opposite facing and corners behind the camera."""
+def _bare_test_winners(vertices: np.ndarray, faces: np.ndarray, camera: Camera, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rasterizer's winners of one pose and what the bare test gives: every triangle at every pixel (edge
+    values with the sign of det(a, b, c) all >= 0, the largest float32 1 / t, ties to the first in the
+    drawing order), in the rasterizer's float64 arithmetic (corners relative to the camera, camera frame)."""
     from pipeline.render.raster import ClusteredMesh, Rasterizer
 
-    rng = np.random.default_rng(7)
-    centres = rng.uniform([-2.0, -1.5, 0.5], [2.0, 1.5, 6.0], (150, 1, 3))
-    corners = centres + rng.normal(0.0, 0.4, (150, 3, 3))
-    corners[:30, 2] = corners[:30, 0] + (corners[:30, 1] - corners[:30, 0]) * rng.uniform(0.0, 1.0, (30, 1)) + 1e-4
-    corners = np.concatenate([corners, corners[-20:, ::-1]])  # the last 20 again, facing the other way
-    vertices, faces = corners.reshape(-1, 3), np.arange(len(corners) * 3).reshape(-1, 3)
-    camera = Camera(48, 36, 30.0, 30.0, 23.5, 17.5)
     rasterizer = Rasterizer(ClusteredMesh(vertices, faces), *camera.pixel_axes(), camera.fx, camera.fy)
-    rasterizer.visible_clusters(np.eye(4))
-    rasterizer.draw_band(slice(0, camera.height), np.eye(4))
-
+    rasterizer.visible_clusters(pose)
+    rasterizer.draw_band(slice(0, camera.height), pose)
     mesh = rasterizer.mesh
     order = np.concatenate([np.arange(mesh.starts[c], mesh.starts[c + 1]) for c in rasterizer.order])
-    a, b, c = (mesh.corners[order, k].astype(np.float64) for k in range(3))  # the camera sits at the origin
+
+    def to_camera(k: int) -> np.ndarray:
+        p = mesh.corners[order, k].astype(np.float64) - pose[:3, 3]
+        return np.stack([pose[0, i] * p[:, 0] + pose[1, i] * p[:, 1] + pose[2, i] * p[:, 2] for i in range(3)], 1)
+
+    a, b, c = to_camera(0), to_camera(1), to_camera(2)
     pixel_x, pixel_y = camera.pixel_axes()
     x, y = pixel_x[None, :, None], pixel_y[:, None, None]  # (rows, columns, triangles) below
     normal = np.cross(b, c)
@@ -141,9 +137,41 @@ def test_the_z_buffer_winner_is_that_of_testing_every_triangle_at_every_pixel() 
     depth = np.where(inside & (det != 0.0), (total * (1.0 / det)).astype(np.float32), np.float32(0.0))
     best = depth.max(axis=-1)
     first = np.argmax((depth == best[..., None]) & (best[..., None] > 0.0), axis=-1)
-    expected = np.where(best > 0.0, order[first], -1)
-    assert (expected >= 0).mean() > 0.3 and (det > 0.0).any() and (det < 0.0).any()
-    assert np.array_equal(rasterizer.winner, expected)
+    assert (det > 0.0).any() and (det < 0.0).any()  # both facings are exercised
+    return rasterizer.winner, np.where(best > 0.0, order[first], -1)
+
+
+def test_the_z_buffer_winner_is_that_of_testing_every_triangle_at_every_pixel() -> None:
+    """The pixel spans, the occlusion culling and the second pass for facing-away triangles only skip work:
+    each pixel's winner is the bare test's. Random triangles with slivers, coincident pairs of opposite
+    facing and corners behind the camera."""
+    rng = np.random.default_rng(7)
+    centres = rng.uniform([-2.0, -1.5, 0.5], [2.0, 1.5, 6.0], (150, 1, 3))
+    corners = centres + rng.normal(0.0, 0.4, (150, 3, 3))
+    corners[:30, 2] = corners[:30, 0] + (corners[:30, 1] - corners[:30, 0]) * rng.uniform(0.0, 1.0, (30, 1)) + 1e-4
+    corners = np.concatenate([corners, corners[-20:, ::-1]])  # the last 20 again, facing the other way
+    vertices, faces = corners.reshape(-1, 3), np.arange(len(corners) * 3).reshape(-1, 3)
+    winner, expected = _bare_test_winners(vertices, faces, Camera(48, 36, 30.0, 30.0, 23.5, 17.5), np.eye(4))
+    assert (expected >= 0).mean() > 0.3
+    assert np.array_equal(winner, expected)
+
+
+def test_the_z_buffer_winner_of_pixel_sized_triangles_is_the_bare_tests() -> None:
+    """Triangles of a few pixels down to slivers between pixel centres (their own box test, their
+    pixel-by-pixel path, the facing told from their plane), seen from a turned camera off the origin:
+    layers of them in front of each other, coincident pairs of opposite facing among them."""
+    from tests.render.tiny_scenes import look_at
+
+    rng = np.random.default_rng(11)
+    centres = rng.uniform([-1.0, -0.8, 1.0], [1.0, 0.8, 1.6], (6000, 1, 3))
+    corners = centres + rng.normal(0.0, 0.025, (6000, 3, 3))  # ~0.2-4 pixels across at 1-1.6 m
+    corners[:200] = centres[:200] + rng.normal(0.0, 0.004, (200, 3, 3))  # mostly between pixel centres
+    corners = np.concatenate([corners, corners[-300:, ::-1]])  # coincident, facing the other way
+    vertices, faces = corners.reshape(-1, 3), np.arange(len(corners) * 3).reshape(-1, 3)
+    pose = look_at(np.array([0.05, -0.03, -0.2]), np.array([0.0, 0.0, 1.3]))
+    winner, expected = _bare_test_winners(vertices, faces, Camera(64, 48, 40.0, 40.0, 31.7, 23.2), pose)
+    assert (expected >= 0).mean() > 0.4
+    assert np.array_equal(winner, expected)
 
 
 def test_the_z_buffer_sees_triangles_reaching_behind_the_camera_and_nearer_than_near() -> None:
