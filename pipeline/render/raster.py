@@ -320,45 +320,32 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
     sign = 1.0 if det > 0.0 else -1.0
     e0, e1, e2 = _edge(a, b, sign), _edge(b, c, sign), _edge(c, a, sign)
     inverse_det = 1.0 / (det * sign)
-    if (bottom - top + 1) * (right - left + 1) <= SMALL_BOX:
-        # Every pixel of a small box is tested: the spans below would skip only pixels that fail the test,
-        # and their three divisions cost more than the pixels.
-        for row in range(top, bottom + 1):
-            y = pixel_y[row]
-            r0, r1, r2 = e0[1] * y + e0[2], e1[1] * y + e1[2], e2[1] * y + e2[2]
-            for column in range(left, right + 1):
-                x = pixel_x[column]
-                w0, w1, w2 = e0[0] * x + r0, e1[0] * x + r1, e2[0] * x + r2
-                if w0 < 0.0 or w1 < 0.0 or w2 < 0.0:
-                    continue
-                depth = np.float32((w0 + w1 + w2) * inverse_det)  # 1 / t: the plane's N . d over det(a, b, c)
-                held = inverse_depth[row, column]
-                if depth > held or (tie_break and depth == held and held > 0.0
-                                    and _drawn_before(triangle, winner[row, column], starts, rank)):
-                    inverse_depth[row, column] = depth
-                    winner[row, column] = triangle
-                    dirty[(row - row_start) // TILE, column // TILE] = True
-        return
     # Each edge's value along a row is linear in x: e[0] x + r. Only the columns within SPAN_MARGIN of where
     # all three are >= 0 are tested. That skips no pixel the exact test would take: a skipped column x lies
     # more than SPAN_MARGIN / fx beyond the zero z of some edge, where the value is -|e[0]| |x - z|, while its
     # rounding errs by at most ~4e-16 |e[0]| (|x| + |z|) (z itself, from the edge's reciprocal slope: one
     # division per edge and triangle, errs by ~2e-16 |z|). For |x|, |z| < 1e6 that is under 1e-9 |e[0]|, far
     # below |e[0]| SPAN_MARGIN / fx for any focal length under 1e5 px; for larger |z|, |x - z| ~ |z| dwarfs it.
-    inverse0, inverse1, inverse2 = _reciprocal(e0[0]), _reciprocal(e1[0]), _reciprocal(e2[0])
+    # A box of at most SMALL_BOX pixels is tested whole: its spans would skip only pixels that fail the test,
+    # and their three divisions cost more than the pixels.
+    small = (bottom - top + 1) * (right - left + 1) <= SMALL_BOX
+    inverse0, inverse1, inverse2 = (0.0, 0.0, 0.0) if small else (
+        _reciprocal(e0[0]), _reciprocal(e1[0]), _reciprocal(e2[0]))
     for row in range(top, bottom + 1):
         y = pixel_y[row]
         r0, r1, r2 = e0[1] * y + e0[2], e1[1] * y + e1[2], e2[1] * y + e2[2]
-        x_from, x_to = _span(e0[0], inverse0, r0, -np.inf, np.inf)
-        x_from, x_to = _span(e1[0], inverse1, r1, x_from, x_to)
-        x_from, x_to = _span(e2[0], inverse2, r2, x_from, x_to)
-        low = (x_from - pixel_x[0]) * fx - SPAN_MARGIN  # in columns
-        high = (x_to - pixel_x[0]) * fx + SPAN_MARGIN
-        if not low <= high:
-            continue  # no column (or a triangle with non-finite corners, which never wins a pixel)
-        # Clamped to the columns before the int conversion (a zero may lie far outside the image).
-        first = int(np.ceil(min(max(low, left), right + 1)))
-        last = int(np.floor(max(min(high, right), left - 1)))
+        first, last = left, right
+        if not small:
+            x_from, x_to = _span(e0[0], inverse0, r0, -np.inf, np.inf)
+            x_from, x_to = _span(e1[0], inverse1, r1, x_from, x_to)
+            x_from, x_to = _span(e2[0], inverse2, r2, x_from, x_to)
+            low = (x_from - pixel_x[0]) * fx - SPAN_MARGIN  # in columns
+            high = (x_to - pixel_x[0]) * fx + SPAN_MARGIN
+            if not low <= high:
+                continue  # no column (or a triangle with non-finite corners, which never wins a pixel)
+            # Clamped to the columns before the int conversion (a zero may lie far outside the image).
+            first = int(np.ceil(min(max(low, left), right + 1)))
+            last = int(np.floor(max(min(high, right), left - 1)))
         entered = False
         for column in range(first, last + 1):
             x = pixel_x[column]
