@@ -201,8 +201,8 @@ def _draw(corners, planes, starts, order, rank, rects, nearest, pose, pixel_x, p
     one facing the camera, so by then most of them are occluded and never reach the pixel loop. A pixel's
     winner stays the one drawing in `order` gives (the nearest; of equal ones, the first in `order`), as
     the second pass breaks ties by that order (`_drawn_before`): which pass draws a triangle changes no winner.
-    `deferred` (one slot per triangle) and
-    `groups` (two per cluster) are scratch space for the facing-away triangles of each cluster."""
+    `deferred` (one slot per triangle) and `groups` (two per cluster) are scratch space for the facing-away
+    triangles of each cluster."""
     width = len(pixel_x)
     for row in range(row_start, row_stop):
         for column in range(width):
