@@ -113,12 +113,15 @@ def test_textures_are_sampled_at_the_nearest_texel() -> None:
 
 
 def _random_hits(seed: int, faces: int = 50, shape: tuple[int, int] = (37, 53)) -> tuple[np.ndarray, RayHits]:
-    """Per-face colour records and hits of random faces (some misses: face == faces), with random geometry."""
+    """Per-face colour records and hits of random faces in runs of 4 along rows (some misses: face == faces),
+    with random geometry."""
     rng = np.random.default_rng(seed)
     corners = rng.integers(0, 256, (faces, 3, 3), dtype=np.uint8)
     records = np.zeros((faces + 1, 16), np.uint8)
     records[:-1, :9] = corners.reshape(faces, 9)
-    face = rng.integers(0, faces + 1, shape).astype(np.intp)
+    # Runs of one face along rows (as rendered frames have; the loops take a face's terms once per run).
+    face = np.repeat(rng.integers(0, faces + 1, (shape[0], shape[1] // 4 + 1)), 4, axis=1)[:, :shape[1]].astype(np.intp)
+    face[rng.random(shape) < 0.2] = faces  # and misses inside runs
     hit = face < faces
     barycentric = rng.uniform(0.0, 0.5, (*shape, 2)).astype(np.float32)
     normal = rng.normal(size=(*shape, 3)).astype(np.float32) * hit[..., None]
