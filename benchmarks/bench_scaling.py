@@ -453,8 +453,9 @@ def measured_render(command: list[str], log: Path, frames: Callable[[], int], wa
     busy_before = busy_cpu_seconds()
     run = run_measured(command, log)
     others_cores = max(0.0, busy_cpu_seconds() - busy_before - run["cpu_s"]) / max(run["wall_s"], 1e-9)
-    if run["exit"] != 0:
-        raise RuntimeError(f"{run['command']} exited {run['exit']}; see {log}")
+    if run["exit"] != 0:  # the scratch folder goes with the error: its log's last line comes along
+        lines = log.read_text(encoding="utf-8", errors="replace").strip().splitlines() or ["(empty log)"]
+        raise RuntimeError(f"{run['command']} exited {run['exit']}: {lines[-1]}")
     count = frames()
     return {**{k: run[k] for k in ("command", "wall_s", "cpu_s", "cpu_s_by_kind", "load_average_1m")},
             "frames": count, "cpu_ms_per_frame": round(1000 * run["cpu_s"] / count, 2),

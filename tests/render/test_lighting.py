@@ -132,8 +132,8 @@ def _random_hits(seed: int, faces: int = 50, shape: tuple[int, int] = (37, 53)) 
 
 @pytest.mark.parametrize("kind", ["ambient", "spot"])
 def test_the_loops_of_the_common_frames_equal_the_general_loop(kind: str) -> None:
-    # Ambient and direct diffuse spot frames of vertex-coloured scenes are shaded by loops of their own
-    # (_ambient_pixels, _direct_spot_pixels): the same bytes as the general loop with those modes set.
+    # Ambient and direct diffuse spot frames of vertex-coloured scenes are shaded by a loop of their own
+    # (_vertex_colour_pixels): the same bytes as the general loop with those modes set.
     for seed in range(4):
         records, hits = _random_hits(seed)
         shader = Shader(Illumination(kind=kind, power=20.0), 0.5 + seed, np.linalg.norm(hits.direction, axis=-1))
