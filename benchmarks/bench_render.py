@@ -516,16 +516,21 @@ def versus_mitsuba(frames: int, repeats: int, threads: int, baseline: Path | Non
         python = mitsuba_python()
         turns: dict[str, list[dict[str, Any]]] = {name: [] for name in [*trees, "mitsuba"]}
         loads = []
-        for _ in range(repeats):  # every side takes one turn per round, so drifts of the load fall on all alike
-            for name, tree in trees.items():
-                loads.append(os.getloadavg()[0])
-                turns[name].append(turn_of_ours(tree, folder, threads))
-            if python is not None:
-                loads.append(os.getloadavg()[0])
-                mitsuba = turn_of_mitsuba(python, folder / "peer")
-                python = python if mitsuba is not None else None
-                if mitsuba is not None:
-                    turns["mitsuba"].append(mitsuba)
+        sides = [*trees, "mitsuba"]
+        for round_index in range(repeats):
+            # Every side takes one turn per round, so drifts of the load fall on all alike, and the order turns
+            # by one each round: with a fixed order, this tree (always first) cast 1.5-4 ms per frame slower than
+            # ff1406f's identical cast in two runs at load 11-15, and alternating processes did not show it.
+            for name in sides[round_index % len(sides):] + sides[:round_index % len(sides)]:
+                if name != "mitsuba":
+                    loads.append(os.getloadavg()[0])
+                    turns[name].append(turn_of_ours(trees[name], folder, threads))
+                elif python is not None:
+                    loads.append(os.getloadavg()[0])
+                    mitsuba = turn_of_mitsuba(python, folder / "peer")
+                    python = python if mitsuba is not None else None
+                    if mitsuba is not None:
+                        turns["mitsuba"].append(mitsuba)
         loads.append(os.getloadavg()[0])
     finally:
         shutil.rmtree(folder, ignore_errors=True)
