@@ -45,7 +45,8 @@ sys.path.insert(0, str(REPO))
 import psutil  # noqa: E402
 
 from benchmarks.bench_scaling import (  # noqa: E402
-    MVPD_FRAMES, MVPD_VIDEOS, RESULTS as SCALING_RESULTS, job_core_seconds, on_nodes, stage_rates, summary)
+    MVPD_FRAMES, MVPD_VIDEOS, RESULTS as SCALING_RESULTS, calibrated_projection, job_core_seconds, on_nodes,
+    stage_rates, summary)
 from pipeline.store.run_folder import RunFolder  # noqa: E402
 
 RESULTS = REPO / "benchmarks" / "results" / "full_job_1pct.json"
@@ -322,6 +323,9 @@ def analyse(results: dict[str, Any], run_dir: Path, outputs: Path) -> dict[str, 
                             "stored_tb": round(MVPD_FRAMES * size["run_bytes_per_frame"] / 1e12, 3),
                             "how": "this run's CPU seconds per frame (render), per scene (shard), per path (plan), per "
                                    "video (screen + split), each without its command's cost, times MVPd's counts"},
+        # The render cost model calibrated on one house of this job (bench_scaling.py --only calibration), beside
+        # this run's own render rate above: the release's render core-hours by both.
+        "calibrated_render_model": calibrated_projection(),
     }
     test_frames = size["test_frames_accepted"]
     if "report" in steps and test_frames:

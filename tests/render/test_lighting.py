@@ -5,10 +5,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from pipeline.config import Illumination, Job
-from pipeline.render.lighting import (REFERENCE_DISTANCE_M, cone_falloff, cone_solid_angle, job_exposure,
+from pipeline.render import lighting
+from pipeline.render.lighting import (REFERENCE_DISTANCE_M, Shader, cone_falloff, cone_solid_angle, job_exposure,
                                       linear_to_srgb, srgb_to_linear)
+from pipeline.render.raycaster import RayHits
 from pipeline.render.renderer import VideoRenderer
 from tests.render.tiny_scenes import embodiment, plane_scene
 
@@ -107,3 +110,41 @@ def test_textures_are_sampled_at_the_nearest_texel() -> None:
     assert rgb[2, 61].tolist() == [255, 255, 0]
     assert rgb[45, 2].tolist() == [255, 0, 0]
     assert rgb[45, 61].tolist() == [0, 255, 0]
+
+
+def _random_hits(seed: int, faces: int = 50, shape: tuple[int, int] = (37, 53)) -> tuple[np.ndarray, RayHits]:
+    """Per-face colour records and hits of random faces in runs of 4 along rows (some misses: face == faces),
+    with random geometry."""
+    rng = np.random.default_rng(seed)
+    corners = rng.integers(0, 256, (faces, 3, 3), dtype=np.uint8)
+    records = np.zeros((faces + 1, 16), np.uint8)
+    records[:-1, :9] = corners.reshape(faces, 9)
+    # Runs of one face along rows (as rendered frames have; the loops take a face's terms once per run).
+    face = np.repeat(rng.integers(0, faces + 1, (shape[0], shape[1] // 4 + 1)), 4, axis=1)[:, :shape[1]].astype(np.intp)
+    face[rng.random(shape) < 0.2] = faces  # and misses inside runs
+    hit = face < faces
+    barycentric = rng.uniform(0.0, 0.5, (*shape, 2)).astype(np.float32)
+    normal = rng.normal(size=(*shape, 3)).astype(np.float32) * hit[..., None]
+    direction = np.concatenate([rng.uniform(-0.7, 0.7, (*shape, 2)), np.ones((*shape, 1))], -1).astype(np.float32)
+    depth = np.where(hit, rng.uniform(0.05, 8.0, shape), np.inf).astype(np.float32)
+    return records, RayHits(depth, face, barycentric, normal, direction, hit)
+
+
+@pytest.mark.parametrize("kind", ["ambient", "spot"])
+def test_the_loops_of_the_common_frames_equal_the_general_loop(kind: str) -> None:
+    # Ambient and direct diffuse spot frames of vertex-coloured scenes are shaded by a loop of their own
+    # (_vertex_colour_pixels): the same bytes as the general loop with those modes set.
+    for seed in range(4):
+        records, hits = _random_hits(seed)
+        shader = Shader(Illumination(kind=kind, power=20.0), 0.5 + seed, np.linalg.norm(hits.direction, axis=-1))
+        spot = kind == "spot"
+        scale = shader._spot_scale_steps if spot else lighting._NO_SCALE
+        fast = lighting._shade(hits, records=records, interpolate=True, scale_steps=scale if spot else None,
+                               decode=shader._decode, encode=shader._encode)
+        general = np.empty_like(fast)
+        lighting._shade_pixels(records, lighting._NO_PLANES, True, True, spot, hits.face, hits.barycentric, hits.normal,
+                               hits.direction, hits.depth, scale, shader._decode, shader._encode, general, False,
+                               lighting._NO_TABLE, lighting._NO_TABLE, False, lighting._NO_INDIRECT, np.float32(1.0), 0,
+                               lighting.INDIRECT_BLOCK)
+        assert np.array_equal(fast, general)
+        assert len(np.unique(fast)) > 50  # the frames are not trivially equal (all black or one colour)
