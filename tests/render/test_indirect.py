@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from pipeline.config import Illumination, IndirectLight
-from pipeline.render import indirect
-from pipeline.render.indirect import IndirectGather, _accumulate as accumulate
+from pipeline.render.indirect import IndirectGather, shadow_rays
+from pipeline.render.indirect.shadow_rays import _accumulate as accumulate
 from pipeline.render.lighting import SurfaceColors, srgb_to_linear
 from pipeline.render.material import multiscatter_energy, reflection_tables
 from pipeline.render.raycaster import SceneRaycaster
@@ -87,7 +87,7 @@ def test_closed_box_mean_radiance_approaches_direct_over_one_minus_albedo(bounce
     points, normals = _surface_samples(sides, 3000, np.random.default_rng(1))
     indirect = gather.irradiance_at(points, normals, pose)[:, 0]
     # Every watt the spot emits lands on the box: the mean direct irradiance over its area is flux / area.
-    direct_mean = gather.ray_flux.sum() / (6 * 2.0 * 2.0)
+    direct_mean = gather.paths.ray_flux.sum() / (6 * 2.0 * 2.0)
     # Radiance is rho E / pi for direct and indirect alike: total / direct = 1 + rho + ... + rho^bounces.
     ratio = 1.0 + indirect.mean() / direct_mean
     expected = sum(rho**k for k in range(bounces + 1))
@@ -105,7 +105,7 @@ def test_a_wide_clamp_costs_no_light_in_the_closed_box() -> None:
     gather = IndirectGather(SceneRaycaster(scene).mesh, SurfaceColors(scene), light, seed=0)
     points, normals = _surface_samples(sides, 3000, np.random.default_rng(1))
     indirect = gather.irradiance_at(points, normals, look_at(np.zeros(3), np.array([0.3, 0.2, 1.0])))[:, 0]
-    ratio = 1.0 + indirect.mean() / (gather.ray_flux.sum() / (6 * 2.0 * 2.0))
+    ratio = 1.0 + indirect.mean() / (gather.paths.ray_flux.sum() / (6 * 2.0 * 2.0))
     assert ratio == pytest.approx(1.0 / (1.0 - rho), rel=0.04)
 
 
@@ -116,9 +116,9 @@ def test_russian_roulette_of_shadow_rays_casts_fewer_rays_and_keeps_the_mean(mon
     pose = look_at(np.zeros(3), np.array([0.3, 0.2, 1.0]))
     cast = []
     counted = lambda cells, *rest: (cast.append(len(cells)), accumulate(cells, *rest))  # noqa: E731
-    monkeypatch.setattr(indirect, "_accumulate", counted)
+    monkeypatch.setattr(shadow_rays, "_accumulate", counted)
     with_roulette = gather.irradiance_at(points, normals, pose)[:, 0]
-    monkeypatch.setattr(indirect, "ROULETTE_BELOW", 0.0)
+    monkeypatch.setattr(shadow_rays, "ROULETTE_BELOW", 0.0)
     every_ray = gather.irradiance_at(points, normals, pose)[:, 0]
     assert cast[0] < 0.6 * cast[1]
     assert with_roulette.mean() == pytest.approx(every_ray.mean(), rel=0.01)
@@ -183,7 +183,7 @@ def test_light_meeting_a_surface_at_a_grazing_angle_bounces_on_forward_only_thro
     normals = np.tile([0.0, 0.0, 1.0], (count, 1))
     incoming = np.tile([-math.sqrt(1.0 - mu * mu), 0.0, mu], (count, 1))  # back towards the light
     rho = np.full((count, 3), 0.5)
-    directions, weights = gather._scatter(normals, incoming, rho, np.random.default_rng(0).random((count, 3)))
+    directions, weights = gather.paths._scatter(normals, incoming, rho, np.random.default_rng(0).random((count, 3)))
     assert np.all(directions[:, 2][weights[:, 0] > 0] > 0)  # every surviving path leaves above the floor
     forward = np.sum(weights[:, 0] * directions[:, 0]) / np.sum(weights[:, 0])
     reflected = weights[:, 0].mean()
@@ -194,7 +194,7 @@ def test_light_meeting_a_surface_at_a_grazing_angle_bounces_on_forward_only_thro
         assert forward > 0.1
         # Base and lobe together reflect about what the tables say, within Cycles' own imbalance (its base
         # keeps 1 - A of the outgoing side, its widened lobes lose a little).
-        assert reflected == pytest.approx(gather._reflectance(normals[:1], incoming[:1], rho[:1])[0, 0], rel=0.1)
+        assert reflected == pytest.approx(gather.paths._reflectance(normals[:1], incoming[:1], rho[:1])[0, 0], rel=0.1)
 
 
 def test_a_surface_narrower_than_a_gather_cell_gathers_its_own_light() -> None:
