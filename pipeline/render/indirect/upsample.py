@@ -1,6 +1,7 @@
-"""Upsample: every block of pixels takes the bilinear mix of its four nearest gather points under the filter's
-geometric weights; a block on none of their surfaces (narrower than the stride: door frames, box tops) is marked
-an orphan, to gather on a finer grid of its own (`IndirectGather._fill_orphans`)."""
+"""Upsample: every pixel (block of INDIRECT_BLOCK x INDIRECT_BLOCK pixels) takes the bilinear mix of its four nearest
+gather points under the filter's geometric weights (normal, plane distance: edge-aware); a pixel on none of their
+surfaces (narrower than the stride: door frames, box tops) is marked an orphan, to gather on a finer grid of its own
+(`IndirectGather._fill_orphans`)."""
 
 from __future__ import annotations
 
@@ -9,27 +10,27 @@ import numpy as np
 
 from pipeline.render.indirect.filter import similarity
 from pipeline.render.indirect.grid import CHANNELS
-from pipeline.render.lighting import INDIRECT_BLOCK
 
 
 @numba.njit(nogil=True, cache=True)
-def upsample_blocks(combined, points, point_normals, point_depth, depth, direction, normal, origin, stride, block_start,
-              out, orphans):  # pragma: no cover (compiled)
-    """Blocks of rows block_start.. (out holds those rows; block (R, C) is the surface of pixel (INDIRECT_BLOCK R,
-    INDIRECT_BLOCK C)): the bilinear mix of the four nearest gather points, each weighted by geometric similarity.
-    A block none of them is alike to (a surface smaller than a cell) is left 0 and marked in `orphans`."""
+def upsample_blocks(combined, points, point_normals, point_depth, depth, direction, normal, origin, stride, block,
+                    block_start, out, orphans):  # pragma: no cover (compiled)
+    """Blocks of rows block_start.. (out holds those rows; block (R, C) is the surface of pixel (block R, block C);
+    `block` is lighting.INDIRECT_BLOCK, passed because numba's cache keeps the value a global had when compiled):
+    the bilinear mix of the four nearest gather points, each weighted by geometric similarity. A block
+    none of them is alike to (a surface smaller than a cell) is left 0 and marked in `orphans`."""
     height, width = out.shape[0], out.shape[1]
     rows, columns = point_depth.shape
     half = np.float32(stride // 2)
     one = np.float32(1.0)
     for local_row in range(height):
-        row = (block_start + local_row) * INDIRECT_BLOCK
+        row = (block_start + local_row) * block
         gi = (np.float32(row) - half) / np.float32(stride)
         i0 = min(max(int(np.floor(gi)), 0), rows - 1)
         i1 = min(i0 + 1, rows - 1)
         fi = min(max(gi - np.float32(i0), np.float32(0.0)), one)
         for block_column in range(width):
-            column = block_column * INDIRECT_BLOCK
+            column = block_column * block
             out[local_row, block_column] = 0.0
             z = depth[row, column]
             if not np.isfinite(z):
