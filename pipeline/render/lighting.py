@@ -30,9 +30,10 @@ from pipeline.scenes.scene import Scene
 # Exposure derived when the job gives none: a white Lambertian surface facing the brightest spot
 # light of the job, on its axis at this distance, is exactly full scale.
 REFERENCE_DISTANCE_M = 2.0
-# Pixels per side of the blocks that share one value of indirect light (indirect.py): it varies slowly,
-# and filling 2 x 2 blocks costs a quarter of filling every pixel (the filter's weights dominate the gather).
-INDIRECT_BLOCK = 2
+# Pixels per side of the blocks that share one value of indirect light (indirect/upsample.py): 1, every pixel
+# its own. 2 x 2 blocks took their first pixel's surface, wrong for the other pixels where the block straddles
+# two surfaces: 1-3 % of the pixels carried 17-30 % of the squared error against the reference.
+INDIRECT_BLOCK = 1
 # Albedo of faces without colour information (neither vertex colours nor a texture).
 DEFAULT_GREY = 160
 

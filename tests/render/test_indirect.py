@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from pipeline.config import Illumination, IndirectLight
-from pipeline.render import indirect
-from pipeline.render.indirect import IndirectGather, _accumulate as accumulate
+from pipeline.render.indirect import IndirectGather, shadow_rays
+from pipeline.render.indirect.shadow_rays import _accumulate as accumulate
 from pipeline.render.lighting import SurfaceColors, srgb_to_linear
 from pipeline.render.material import multiscatter_energy, reflection_tables
 from pipeline.render.raycaster import SceneRaycaster
@@ -71,9 +71,9 @@ def test_indirect_light_is_zero_where_nothing_can_bounce() -> None:
     assert np.array_equal(lit.render(pose).rgb, direct.render(pose).rgb)
     # The same box with grey sides does bounce light onto the far wall.
     grey, _ = _box(4.0)
-    blocks = VideoRenderer(grey, embodiment(light=_spot(bounces=1)), exposure=2.0).indirect.irradiance(hits, pose)
-    assert blocks.shape == (24, 32, 6)  # one value per 2 x 2 pixels of the 64 x 48 frame
-    assert blocks[..., :3].min() > 0.0 and blocks[..., 3:].max() == 0.0  # diffuse: no glossy term
+    light = VideoRenderer(grey, embodiment(light=_spot(bounces=1)), exposure=2.0).indirect.irradiance(hits, pose)
+    assert light.shape == (48, 64, 6)  # one value per pixel of the 64 x 48 frame
+    assert light[..., :3].min() > 0.0 and light[..., 3:].max() == 0.0  # diffuse: no glossy term
 
 
 @pytest.mark.parametrize(("bounces", "traced"), [(1, 1), (2, 2), (8, 8), (8, 2)])
@@ -87,7 +87,7 @@ def test_closed_box_mean_radiance_approaches_direct_over_one_minus_albedo(bounce
     points, normals = _surface_samples(sides, 3000, np.random.default_rng(1))
     indirect = gather.irradiance_at(points, normals, pose)[:, 0]
     # Every watt the spot emits lands on the box: the mean direct irradiance over its area is flux / area.
-    direct_mean = gather.ray_flux.sum() / (6 * 2.0 * 2.0)
+    direct_mean = gather.paths.ray_flux.sum() / (6 * 2.0 * 2.0)
     # Radiance is rho E / pi for direct and indirect alike: total / direct = 1 + rho + ... + rho^bounces.
     ratio = 1.0 + indirect.mean() / direct_mean
     expected = sum(rho**k for k in range(bounces + 1))
@@ -105,7 +105,7 @@ def test_a_wide_clamp_costs_no_light_in_the_closed_box() -> None:
     gather = IndirectGather(SceneRaycaster(scene).mesh, SurfaceColors(scene), light, seed=0)
     points, normals = _surface_samples(sides, 3000, np.random.default_rng(1))
     indirect = gather.irradiance_at(points, normals, look_at(np.zeros(3), np.array([0.3, 0.2, 1.0])))[:, 0]
-    ratio = 1.0 + indirect.mean() / (gather.ray_flux.sum() / (6 * 2.0 * 2.0))
+    ratio = 1.0 + indirect.mean() / (gather.paths.ray_flux.sum() / (6 * 2.0 * 2.0))
     assert ratio == pytest.approx(1.0 / (1.0 - rho), rel=0.04)
 
 
@@ -116,9 +116,9 @@ def test_russian_roulette_of_shadow_rays_casts_fewer_rays_and_keeps_the_mean(mon
     pose = look_at(np.zeros(3), np.array([0.3, 0.2, 1.0]))
     cast = []
     counted = lambda cells, *rest: (cast.append(len(cells)), accumulate(cells, *rest))  # noqa: E731
-    monkeypatch.setattr(indirect, "_accumulate", counted)
+    monkeypatch.setattr(shadow_rays, "_accumulate", counted)
     with_roulette = gather.irradiance_at(points, normals, pose)[:, 0]
-    monkeypatch.setattr(indirect, "ROULETTE_BELOW", 0.0)
+    monkeypatch.setattr(shadow_rays, "ROULETTE_BELOW", 0.0)
     every_ray = gather.irradiance_at(points, normals, pose)[:, 0]
     assert cast[0] < 0.6 * cast[1]
     assert with_roulette.mean() == pytest.approx(every_ray.mean(), rel=0.01)
@@ -167,8 +167,8 @@ def test_textured_scenes_bounce_their_texture_colours() -> None:
     pose = look_at(np.array([0.0, 1.2, -1.5]), np.array([0.0, 0.5, 1.5]))
     hits = VideoRenderer(scene, embodiment(), exposure=2.0).trace(pose)
     assert np.all(SurfaceColors(scene).albedo_at(hits.face[hits.hit], hits.barycentric[hits.hit]) == [200, 40, 40])
-    blocks = VideoRenderer(scene, embodiment(light=_spot(bounces=2)), exposure=2.0).indirect.irradiance(hits, pose)
-    lit = blocks[hits.hit[::2, ::2]]
+    light = VideoRenderer(scene, embodiment(light=_spot(bounces=2)), exposure=2.0).indirect.irradiance(hits, pose)
+    lit = light[hits.hit]
     assert np.all(lit[:, 0] > lit[:, 1])  # red walls bounce red light
 
 
@@ -183,7 +183,7 @@ def test_light_meeting_a_surface_at_a_grazing_angle_bounces_on_forward_only_thro
     normals = np.tile([0.0, 0.0, 1.0], (count, 1))
     incoming = np.tile([-math.sqrt(1.0 - mu * mu), 0.0, mu], (count, 1))  # back towards the light
     rho = np.full((count, 3), 0.5)
-    directions, weights = gather._scatter(normals, incoming, rho, np.random.default_rng(0).random((count, 3)))
+    directions, weights = gather.paths._scatter(normals, incoming, rho, np.random.default_rng(0).random((count, 3)))
     assert np.all(directions[:, 2][weights[:, 0] > 0] > 0)  # every surviving path leaves above the floor
     forward = np.sum(weights[:, 0] * directions[:, 0]) / np.sum(weights[:, 0])
     reflected = weights[:, 0].mean()
@@ -194,29 +194,52 @@ def test_light_meeting_a_surface_at_a_grazing_angle_bounces_on_forward_only_thro
         assert forward > 0.1
         # Base and lobe together reflect about what the tables say, within Cycles' own imbalance (its base
         # keeps 1 - A of the outgoing side, its widened lobes lose a little).
-        assert reflected == pytest.approx(gather._reflectance(normals[:1], incoming[:1], rho[:1])[0, 0], rel=0.1)
+        assert reflected == pytest.approx(gather.paths._reflectance(normals[:1], incoming[:1], rho[:1])[0, 0], rel=0.1)
 
 
-def test_a_surface_narrower_than_a_gather_cell_gathers_its_own_light() -> None:
+def _plank_in_a_box() -> tuple[VideoRenderer, np.ndarray]:
     """A plank seen edge-on (3 px wide, no gather point on it) facing the one wall that reflects (the right one;
-    the others are black): its blocks get the light of points on the plank, as the estimator finds there."""
+    the others are black), and the pose that sees it; the box's 12 triangles come first."""
     _, sides = _box(4.0)
     builder = _Builder()
     for index, corners in enumerate(sides):
         builder.quad(np.array(corners, np.float32), index + 1, (230, 230, 230) if index == 3 else (0, 0, 0))
-    plank = np.array([[-0.5, -1.0, 1.5], [-0.5, -1.0, 1.9], [-0.5, 1.0, 1.9], [-0.5, 1.0, 1.5]], np.float32)
+    plank = np.array([[-0.45, -1.0, 1.5], [-0.45, -1.0, 1.9], [-0.45, 1.0, 1.9], [-0.45, 1.0, 1.5]], np.float32)
     builder.quad(plank, 7, (GREY, GREY, GREY))
-    scene = builder.scene("box with a plank")
     light = Illumination(kind="spot", power=20.0, indirect=IndirectLight(
         bounces=1, traced_bounces=1, virtual_lights=1024, gather_stride=12, interleave=2, clamp_distance=0.1))
-    renderer = VideoRenderer(scene, embodiment(light=light), exposure=2.0)
-    pose = look_at(np.zeros(3), np.array([0.0, 0.0, 2.0]))
+    renderer = VideoRenderer(builder.scene("box with a plank"), embodiment(light=light), exposure=2.0)
+    return renderer, look_at(np.zeros(3), np.array([0.0, 0.0, 2.0]))
+
+
+def _per_pixel(light: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The indirect light of every pixel, from one value per pixel or per block of pixels."""
+    block = -(-shape[0] // light.shape[0])
+    return np.repeat(np.repeat(light, block, axis=0), block, axis=1)[:shape[0], :shape[1]]
+
+
+def test_a_surface_narrower_than_a_gather_cell_gathers_its_own_light() -> None:
+    """The plank's pixels get the light of points on the plank, as the estimator finds there."""
+    renderer, pose = _plank_in_a_box()
     hits = renderer.trace(pose)
-    blocks = renderer.indirect.irradiance(hits, pose)
-    on_plank = hits.face[::2, ::2] >= 12  # the box's 12 triangles come first
-    assert on_plank.sum(axis=1).max() <= 2 and on_plank.sum(axis=0).max() >= 10  # narrow and tall (in blocks)
-    points = pose[:3, 3] + hits.depth[::2, ::2][on_plank][:, None] * hits.direction[::2, ::2][on_plank]
+    light = _per_pixel(renderer.indirect.irradiance(hits, pose), hits.depth.shape)
+    on_plank = hits.face >= 12
+    assert on_plank.sum(axis=1).max() <= 4 and on_plank.sum(axis=0).max() >= 20  # narrow and tall
+    points = pose[:3, 3] + hits.depth[on_plank][:, None] * hits.direction[on_plank]
     normals = np.repeat(np.array([[1.0, 0.0, 0.0]]), len(points), 0)
     expected = renderer.indirect.irradiance_at(points, normals, pose)[:, 0].mean()
     assert expected > 0.0
-    assert blocks[on_plank][:, 0].mean() == pytest.approx(expected, rel=0.25)
+    assert light[on_plank][:, 0].mean() == pytest.approx(expected, rel=0.25)
+
+
+def test_every_pixel_takes_the_indirect_light_of_its_own_surface() -> None:
+    """Indirect light is one value per pixel: a pixel of the plank beside the wall behind it keeps the plank's
+    light, where 2 x 2 blocks gave the pixels of a block the light of its first pixel's surface."""
+    renderer, pose = _plank_in_a_box()
+    hits = renderer.trace(pose)
+    light = _per_pixel(renderer.indirect.irradiance(hits, pose), hits.depth.shape)
+    on_plank = hits.face >= 12
+    plank_light = np.median(light[on_plank][:, 0])
+    assert plank_light > 0.0
+    # Every plank pixel within 25 % of the plank's median (a block's light from the black-lit wall is far off).
+    assert np.all(np.abs(light[on_plank][:, 0] - plank_light) < 0.25 * plank_light), light[on_plank][:, 0]

@@ -1,0 +1,142 @@
+"""Virtual lights: the spot's light where it lands, bounce after bounce (the light paths of instant radiosity).
+
+Rays leave the spot (the camera centre) in a stratified pattern distributed like the spot's intensity
+I s(theta) over its cone (`sampling.spot_pattern`), each carrying an equal share of the spot's flux. Where a ray
+lands, the surface reflects its share as a virtual light with the surface's material (diffuse base and GGX lobe
+about the direction the light came from); for each further bounce the light sends its flux on along a direction
+sampled from that material, and where that lands a new virtual light shines what that surface reflects. Camera
+pixels are where the spot's light first lands, so the first-bounce lights are spread over the visible surfaces
+and those beside, below and above the view that the 180-degree cone also lights.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.config import Illumination
+from pipeline.render.embree import EmbreeMesh
+from pipeline.render.indirect.sampling import (cosine_directions, ggx_half_vectors, spot_pattern, table_entries,
+                                               widened_alpha)
+from pipeline.render.lighting import SurfaceColors, srgb_to_linear
+from pipeline.render.material import fresnel_dielectric, reflection_tables, smith_g2
+
+# Offset of shadow and bounce rays off their surface, relative to the distance from the camera (float32
+# hits are accurate to ~1e-7 of that distance).
+SURFACE_OFFSET = 1e-4
+# Ratio of successive bounces used for the untraced ones at most (a white closed room would give 1).
+MAX_BOUNCE_RATIO = 0.95
+
+
+class VirtualLights:
+    """The virtual point lights of one frame: positions (n, 3), normals (n, 3) facing the side lit, unit
+    directions back to where their light came from (n, 3), the flux that arrived (n, 3) watts per channel,
+    that flux times the surface's albedo (n, 3), and the interleaving group of each (n,). A light shines
+    as its surface reflects what arrived: diffuse base and GGX lobe (material.py)."""
+
+    def __init__(self, positions: np.ndarray, normals: np.ndarray, incoming: np.ndarray, flux: np.ndarray,
+                 coloured_flux: np.ndarray, groups: np.ndarray):
+        self.positions, self.normals, self.incoming = positions, normals, incoming
+        self.flux, self.coloured_flux, self.groups = flux, coloured_flux, groups
+
+
+class LightPaths:
+    """The spot's light paths for one job: a pattern of rays from the spot, drawn once from `rng`, traced from
+    any pose through `illumination.indirect.traced_bounces` bounces into virtual lights.
+
+    Args:
+        mesh: the scene's BVH.
+        colors: the scene's albedo lookup.
+        illumination: the spot (its `indirect` settings).
+        rng: the job's generator for the pattern (the spot's rays, then the numbers of every further bounce).
+    """
+
+    def __init__(self, mesh: EmbreeMesh, colors: SurfaceColors, illumination: Illumination, rng: np.random.Generator):
+        self.mesh, self.colors, self.settings = mesh, colors, illumination.indirect
+        self.tables = reflection_tables(illumination)
+        self.directions, self.ray_flux, self.ray_groups = spot_pattern(illumination, self.settings.virtual_lights,
+                                                                       self.settings.interleave, rng)
+        # Three uniform numbers per light and further bounce: the lobe (diffuse or glossy), then its direction.
+        self.traced = min(self.settings.bounces, self.settings.traced_bounces)
+        self._bounce_numbers = rng.random((max(0, self.traced - 1), len(self.directions), 3))
+
+    def virtual_lights(self, camera_to_world: np.ndarray) -> VirtualLights:
+        """Trace the pattern from the spot at `camera_to_world` through every bounce."""
+        rotation = np.asarray(camera_to_world, np.float64)[:3, :3]
+        origins = np.repeat(np.asarray(camera_to_world, np.float32)[None, :3, 3], len(self.directions), 0)
+        directions = (self.directions @ rotation.T).astype(np.float32)
+        flux = np.repeat(self.ray_flux[:, None], 3, 1)
+        groups, pattern_index = self.ray_groups, np.arange(len(self.directions))
+        camera = np.asarray(camera_to_world, np.float64)[:3, 3]
+        found: list[list[np.ndarray]] = []
+        emitted = [np.full(3, self.ray_flux.sum())]  # RGB flux leaving the spot, then each bounce's lights
+        for bounce in range(self.traced):
+            positions, normals, incoming, rho, keep = self._land(origins, directions)
+            positions, normals, incoming, rho = positions[keep], normals[keep], incoming[keep], rho[keep]
+            flux, groups, pattern_index = flux[keep], groups[keep], pattern_index[keep]
+            found.append([positions, normals, incoming, flux, flux * rho, groups])
+            emitted.append(np.sum(flux * self._reflectance(normals, incoming, rho), axis=0))
+            if bounce + 1 == self.traced:
+                break
+            # Each light's path keeps its own numbers of the pattern, whichever other paths were lost.
+            directions, weights = self._scatter(normals, incoming, rho, self._bounce_numbers[bounce][pattern_index])
+            flux = flux * weights
+            lift = SURFACE_OFFSET * (1.0 + np.linalg.norm(positions - camera, axis=1, keepdims=True))
+            origins = (positions + normals * lift).astype(np.float32)
+        untraced = self.settings.bounces - self.traced
+        if untraced > 0:
+            # Later bounces look like the last traced one, each r times as strong per channel (r < 1: light is
+            # absorbed; per channel, because each bounce saturates the colour of the light further).
+            ratio = np.minimum(emitted[-1] / np.maximum(emitted[-2], 1e-30), MAX_BOUNCE_RATIO)
+            series = sum(ratio**k for k in range(untraced + 1))
+            found[-1][3], found[-1][4] = found[-1][3] * series, found[-1][4] * series
+        parts = [np.concatenate([part[k] for part in found]) for k in range(6)]
+        return VirtualLights(*(np.ascontiguousarray(part, np.float32) for part in parts[:5]), parts[5])
+
+    def _land(self, origins: np.ndarray, directions: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Where rays land: positions, normals facing the ray, unit directions back along the ray, the linear
+        albedo there (n, 3), and which rays hit."""
+        count = len(origins)
+        t, face = np.empty(count, np.float32), np.empty(count, np.int64)
+        barycentric, normal = np.empty((count, 2), np.float32), np.empty((count, 3), np.float32)
+        self.mesh.intersect(np.ascontiguousarray(origins), np.ascontiguousarray(directions), 0.0,
+                            (t, face, barycentric, normal))
+        keep = face >= 0
+        positions = origins + directions * np.where(keep, t, 0.0)[:, None]
+        facing = np.sum(normal * directions, axis=1)
+        normal *= np.where(facing > 0, -1.0, 1.0)[:, None].astype(np.float32)  # the side the light came from
+        incoming = -directions / np.maximum(np.linalg.norm(directions, axis=1, keepdims=True), 1e-12)
+        rho = np.zeros((count, 3), np.float32)
+        rho[keep] = srgb_to_linear(self.colors.albedo_at(face[keep], barycentric[keep]) / 255.0)
+        return positions.astype(np.float32), normal, incoming.astype(np.float32), rho, keep
+
+    def _reflectance(self, normals: np.ndarray, incoming: np.ndarray, rho: np.ndarray) -> np.ndarray:
+        """(n, 3) fraction of the light arriving from `incoming` that a surface reflects (base and lobe)."""
+        lobe = self.tables.albedo[table_entries(np.sum(normals * incoming, axis=1))][:, None]
+        return rho * (1.0 - lobe) + lobe
+
+    def _scatter(self, normals: np.ndarray, incoming: np.ndarray, rho: np.ndarray, numbers: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """The next direction of each path (n, 3) and the factor (n, 3) of its flux, f cos / pdf: the lobe
+        is picked by numbers[:, 0] in proportion to what it reflects, then sampled (cosine or GGX)."""
+        tables = self.tables
+        alpha = float(widened_alpha(tables.alpha, 1.0))
+        lobe = tables.albedo[table_entries(np.sum(normals * incoming, axis=1))]
+        glossy_share = lobe / np.maximum(lobe + rho.mean(axis=1) * (1.0 - lobe), 1e-12)
+        glossy = numbers[:, 0] < glossy_share
+        directions = cosine_directions(normals, numbers[:, 1:])
+        half = ggx_half_vectors(normals, numbers[:, 1:], alpha)
+        cos_oh = np.sum(incoming * half, axis=1)
+        mirrored = 2.0 * cos_oh[:, None] * half - incoming
+        directions = np.where(glossy[:, None], mirrored, directions)
+        cos_o = np.sum(normals * directions, axis=1)
+        cos_i, cos_h = np.sum(normals * incoming, axis=1), np.sum(normals * half, axis=1)
+        energy = tables.energy[table_entries(cos_o)]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # GGX sampled by D cos_h: f cos_o / pdf = G2 F (w_o . h) / (mu_i cos_h).
+            glossy_weight = (smith_g2(cos_i, cos_o, alpha) * fresnel_dielectric(cos_oh, tables.ior) * cos_oh
+                             / (cos_i * cos_h) * energy / glossy_share)
+            glossy_weight = np.where(cos_o > 0, glossy_weight, 0.0)[:, None]
+            diffuse_weight = rho * (1.0 - tables.albedo[table_entries(cos_o)])[:, None] / (1.0 - glossy_share)[:, None]
+        weights = np.where(glossy[:, None], glossy_weight, diffuse_weight)
+        return directions.astype(np.float32), weights
