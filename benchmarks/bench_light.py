@@ -1,6 +1,6 @@
 """Light benchmark (issues 21, 32): our spot light against the authors' Cycles renders and a matched Mitsuba 3.
 
-Run (the whole bench, one command; ~30-60 min on the shared 2 cores):
+Run (the whole bench, one command; ~30 min on the shared 2 cores, 64 spp of Mitsuba the dearest part):
 
     .venv/bin/python benchmarks/bench_light.py
 
@@ -28,7 +28,8 @@ The rounds interleave ours, Cycles and Mitsuba, so load drifts fall on all alike
 Side-by-side pictures (ours | Cycles 16 spp + OIDN | reference, half size) go to benchmarks/results/light/.
 
 Blender's spot spreads its watts over the whole sphere (I = P / 4 pi) where our model spreads them over the cone
-(P / 2 pi for 180 degrees): Cycles' radiance is scaled by BLENDER_SPOT_SCALE before the shared exposure.
+(P / 2 pi for 180 degrees): Cycles' radiance is scaled by BLENDER_SPOT_SCALE before the shared exposure
+(Mitsuba's matched spot has our intensity: its radiance meets the exposure as is).
 Results: benchmarks/results/light.json.
 """
 
@@ -82,7 +83,6 @@ CYCLES1_OIDN = {"name": "cycles1_oidn", "samples": 1, "bounces": 16, "denoise": 
 MITSUBA_DEPTH = 18  # Mitsuba counts the camera segment and the light's: 16 bounces = max_depth 18
 ENCODING_CYCLES = (f"linear radiance x {BLENDER_SPOT_SCALE} (Blender's spot watts) x exposure {EXPOSURE}, "
                    "clipped, sRGB, rounded to 8 bits")
-ENCODING_OURS = f"linear radiance x exposure {EXPOSURE}, clipped, sRGB, rounded to 8 bits"
 
 
 class CacheMismatch(Exception):
@@ -313,7 +313,7 @@ def main() -> None:
                         f"{REFERENCE_FLOOR['poses']} anew with another seed (its own noise floor)")
     parser.add_argument("--cycles16", action="store_true", help="render Cycles 16 spp (no denoiser) anew at "
                         "every pose (~1 min per frame)")
-    parser.add_argument("--mitsuba-spp", default="1,4,16,64,256", help="samples per pixel of the Mitsuba path sweep")
+    parser.add_argument("--mitsuba-spp", default="1,4,16,64", help="samples per pixel of the Mitsuba path sweep")
     parser.add_argument("--mitsuba-poses", default="0,2,4,6", help="reference poses of the Mitsuba sweep")
     parser.add_argument("--speed-repeat", type=int, default=6, help="ours' speed run renders the poses this often")
     parser.add_argument("--threads", type=int, default=2)
@@ -425,8 +425,7 @@ def run_rounds(args: argparse.Namespace, scene: Scene, poses: np.ndarray, folder
             if r == 0:
                 renders.append({"name": "cycles_direct", "samples": 1, "bounces": 0})
             if run_peer(cycles, "peer_cycles.py", folder / "peer", "renders", renders, folder / "cycles.log"):
-                entry["cycles"] = {render["name"]: peer_output(folder / "peer", render["name"],
-                                                               BLENDER_SPOT_SCALE * EXPOSURE) for render in renders}
+                entry["cycles"] = collect(folder / "peer", "", renders, len(poses), BLENDER_SPOT_SCALE * EXPOSURE)
         mine_sweep = [i for i in sweep_poses if i in mine] or mine[:1]
         if mitsuba is not None:
             renders = [{"name": f"path{spp}", "matched": True, "integrator": "path", "max_depth": MITSUBA_DEPTH,
@@ -435,8 +434,7 @@ def run_rounds(args: argparse.Namespace, scene: Scene, poses: np.ndarray, folder
                 renders += [{"name": "direct", "matched": True, "integrator": "direct", "samples": 1},
                             {"name": "stock_direct", "integrator": "direct", "samples": 1}]  # what matching mends
             if run_peer(mitsuba, "peer_mitsuba.py", folder / "peer", "mitsuba", renders, folder / "mitsuba.log"):
-                entry["mitsuba"] = {render["name"]: peer_output(folder / "peer", f"mitsuba_{render['name']}", EXPOSURE)
-                                    for render in renders}
+                entry["mitsuba"] = collect(folder / "peer", "mitsuba_", renders, len(poses), EXPOSURE)
                 entry["mitsuba_poses"] = mine_sweep
         rounds.append(entry)
     return rounds
@@ -449,21 +447,23 @@ def per_frame_ms(rounds: list[list[float]]) -> dict[str, Any]:
             "min": round(min(values), 1), "max": round(max(values), 1)}
 
 
+def collect(folder: Path, prefix: str, renders: list[dict], count: int, scale: float
+            ) -> dict[str, tuple[list[int], list[np.ndarray], list[float]]]:
+    """Each render of a peer's run: the pose indices it rendered (all `count` when it names none), its 8-bit
+    frames and CPU seconds per frame."""
+    return {render["name"]: (render.get("poses", list(range(count))),
+                             *peer_output(folder, prefix + render["name"], scale)) for render in renders}
+
+
 def gather(rounds: list[dict[str, Any]], peer: str, name: str) -> tuple[dict[int, np.ndarray], list[list[float]]]:
     """A peer render's frames by pose index over the rounds, and its CPU seconds per round."""
     frames: dict[int, np.ndarray] = {}
     cpu: list[list[float]] = []
     for entry in rounds:
-        if name not in entry.get(peer, {}):
-            continue
-        images, seconds = entry[peer][name]
-        indices = entry["poses"] if peer == "cycles" else entry["mitsuba_poses"]
-        if name in ("cycles16_again",):
-            indices = entry["poses"][:1]
-        if name in ("cycles_direct", "direct", "stock_direct"):
-            indices = list(range(len(images)))
-        frames.update(zip(indices, images))
-        cpu.append(seconds)
+        if name in entry.get(peer, {}):
+            indices, images, seconds = entry[peer][name]
+            frames.update(zip(indices, images))
+            cpu.append(seconds)
     return frames, cpu
 
 
