@@ -300,6 +300,14 @@ def save_png(path: Path, rgb: np.ndarray) -> None:
     cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 9])
 
 
+def whole_numbers(text: str) -> list[int]:
+    """A comma-separated list of whole numbers (an argparse type: a bad one is a one-line usage error)."""
+    try:
+        return [int(part) for part in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of whole numbers, e.g. 1,4,16") from None
+
+
 def load_average() -> list[float]:
     return [round(v, 2) for v in os.getloadavg()]
 
@@ -313,8 +321,10 @@ def main() -> None:
                         f"{REFERENCE_FLOOR['poses']} anew with another seed (its own noise floor)")
     parser.add_argument("--cycles16", action="store_true", help="render Cycles 16 spp (no denoiser) anew at "
                         "every pose (~1 min per frame)")
-    parser.add_argument("--mitsuba-spp", default="1,4,16,64", help="samples per pixel of the Mitsuba path sweep")
-    parser.add_argument("--mitsuba-poses", default="0,2,4,6", help="reference poses of the Mitsuba sweep")
+    parser.add_argument("--mitsuba-spp", default="1,4,16,64", type=whole_numbers,
+                        help="samples per pixel of the Mitsuba path sweep")
+    parser.add_argument("--mitsuba-poses", default="0,2,4,6", type=whole_numbers,
+                        help="reference poses of the Mitsuba sweep")
     parser.add_argument("--speed-repeat", type=int, default=6, help="ours' speed run renders the poses this often")
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
@@ -407,8 +417,7 @@ def run_rounds(args: argparse.Namespace, scene: Scene, poses: np.ndarray, folder
     the direct-light checks. Returns per round: ours' CPU and wall per frame, each peer's frames and CPU."""
     body = Embodiment(name="bench", sensor=Sensor(), illumination=mvpd_spot())
     speed_poses = np.tile(poses, (args.speed_repeat, 1, 1))
-    sweep_poses = [int(i) for i in args.mitsuba_poses.split(",")]
-    spps = [int(s) for s in args.mitsuba_spp.split(",")]
+    sweep_poses, spps = args.mitsuba_poses, args.mitsuba_spp
     run_ours(scene, poses[:2], body, EXPOSURE, folder / "warm.zarr", threads=args.threads)  # first-use costs
     shutil.rmtree(folder / "warm.zarr", ignore_errors=True)
     rounds = []
@@ -536,7 +545,7 @@ def mitsuba_sweep(args: argparse.Namespace, rounds: list[dict[str, Any]], ours: 
     """The Mitsuba path sweep: per spp, PSNR on the sweep poses and CPU ms per frame."""
     points = []
     covered: list[int] = []
-    for spp in (int(s) for s in args.mitsuba_spp.split(",")):
+    for spp in args.mitsuba_spp:
         frames, cpu = gather(rounds, "mitsuba", f"path{spp}")
         if not frames:
             return None

@@ -119,3 +119,12 @@ def test_the_cached_renders_were_made_for_the_bench_house(bench, tmp_path):
     scene = bench.bench_house(tmp_path)
     args = type("Flags", (), {"reference": False, "reference_floor": False, "cycles16": False})()
     bench.check_caches(args, bench.scene_hash(scene), bench.stored_poses())
+
+
+def test_a_bad_sweep_list_is_a_one_line_usage_error(bench, monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", ["bench_light.py", "--mitsuba-spp", "1,4,x"])
+    with pytest.raises(SystemExit) as stopped:
+        bench.main()
+    assert stopped.value.code == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--mitsuba-spp: '1,4,x' is not a comma-separated list of whole numbers" in error
