@@ -242,7 +242,7 @@ def to_8bit(radiance: np.ndarray, scale: float) -> np.ndarray:
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
     """PSNR in dB of two 8-bit images."""
     mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return float("inf") if mse == 0 else 10.0 * np.log10(255.0**2 / mse)
+    return float("inf") if mse == 0 else float(10.0 * np.log10(255.0**2 / mse))
 
 
 def compare(images: Sequence[np.ndarray], references: Sequence[np.ndarray]) -> dict[str, Any]:
@@ -333,12 +333,16 @@ def main() -> None:
     try:
         result = measure(args, folder)
     except CacheMismatch as error:
-        sys.exit(f"bench_light: {error}")
-    finally:
         shutil.rmtree(folder, ignore_errors=True)
+        sys.exit(f"bench_light: {error}")
+    except BaseException:
+        print(f"bench_light: stopped; the last round's renders are kept in {folder}", file=sys.stderr)
+        raise
+    shutil.rmtree(folder, ignore_errors=True)
     result["wall_s"] = round(time.perf_counter() - started, 1)
     out = RESULTS.parent / "light.json"
-    out.write_text(json.dumps(result, indent=1) + "\n")
+    # numpy scalars as Python numbers: a 45-minute run must not die in its last line
+    out.write_text(json.dumps(result, indent=1, default=lambda value: value.item()) + "\n")
     print(json.dumps(result["summary"], indent=1))
     print(f"wrote {out} ({result['wall_s']:.0f} s)")
 
@@ -499,7 +503,7 @@ def evaluate(args: argparse.Namespace, scene: Scene, poses: np.ndarray, rounds: 
         agreement = compare([again[i] for i in sorted(again)], [cached16[i] for i in sorted(again)])
         # Same seed, samples and threads: Cycles repeats itself to the last bit but for a few values off by one.
         checks["cycles16_cache_rerendered_vs_cached"] = {"poses": sorted(again), "reproduces":
-                                                         agreement["psnr_min"] >= REPRODUCED_PSNR, **agreement}
+                                                         bool(agreement["psnr_min"] >= REPRODUCED_PSNR), **agreement}
         speed["cycles16_cpu_ms"] = per_frame_ms(again_cpu)
         peers["cycles16"] = [(speed["cycles16_cpu_ms"]["median"], quality["cycles16"]["psnr_median"])]
     for name in ("cycles16_oidn", "cycles1_oidn"):

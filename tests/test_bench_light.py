@@ -128,3 +128,14 @@ def test_a_bad_sweep_list_is_a_one_line_usage_error(bench, monkeypatch, capsys):
     assert stopped.value.code == 2
     error = capsys.readouterr().err.strip().splitlines()[-1]
     assert "--mitsuba-spp: '1,4,x' is not a comma-separated list of whole numbers" in error
+
+
+def test_comparisons_are_plain_json(bench):
+    """A whole run once died writing light.json: a numpy bool in the checks. Comparisons hold Python numbers."""
+    a = np.zeros((4, 4, 3), np.uint8)
+    b = a.copy()
+    b[0, 0, 0] = 9
+    result = bench.compare([a, b], [b, b])
+    assert type(result["psnr_min"]) is float and type(result["psnr_median"]) is float
+    assert type(bool(result["psnr_min"] >= bench.REPRODUCED_PSNR)) is bool
+    assert json.loads(json.dumps(result))["psnr_max"] == 99.0
