@@ -4,7 +4,8 @@ Run by bench_light.py as `/work/venvs/bpy/bin/python benchmarks/peer_cycles.py F
 `bash benchmarks/setup_light_peers.sh`. FOLDER holds `scene.npz` (vertices (V, 3) float32, faces (F, 3) int32,
 colors (V, 3) float32 linear albedo), `poses.npy` ((N, 4, 4) camera-to-world, OpenCV axes) and `settings.json`
 (camera, light, material, the list of `renders` to make: the first `frames` poses, or the poses of the
-indices `poses`). Each render writes `<name>.npz` beside them:
+indices `poses`; `denoise` turns on OpenImageDenoise with Blender's default passes, as a new scene has it). An
+untimed 1 spp frame first builds the BVH, so the timed frames are what a frame costs in a long render. Each render writes `<name>.npz` beside them:
 `images` (N, H, W, 3) float32 linear radiance as Cycles reports it, `seconds` and `cpu_seconds` (of the
 process, every thread) per frame (render and EXR write).
 
@@ -163,6 +164,8 @@ def main() -> None:
     settings = json.loads((folder / "settings.json").read_text())
     poses = np.load(folder / "poses.npy")
     camera, _ = build_scene(folder, settings)
+    # One untimed frame first: Cycles builds its BVH at the first render (persistent data keeps it after).
+    render_all(folder, poses[:1], camera, {"name": "warm_up", "samples": 1, "bounces": 0})
     for render in settings["renders"]:
         render_all(folder, poses[: render.get("frames", len(poses))], camera, render)
 
