@@ -81,12 +81,15 @@ FLAGS = {"reference": "--reference", "reference_seed2": "--reference-floor", "cy
 CYCLES16_OIDN = {"name": "cycles16_oidn", "samples": 16, "bounces": 16, "denoise": True, "seed": 0}
 CYCLES1_OIDN = {"name": "cycles1_oidn", "samples": 1, "bounces": 16, "denoise": True, "seed": 0}
 MITSUBA_DEPTH = 18  # Mitsuba counts the camera segment and the light's: 16 bounces = max_depth 18
+# How the peers shade the mesh: it has no normals, so flat (glTF 2.0: a mesh without normals gets flat normals,
+# and the authors imported their GLBs with Blender's glTF importer); bpy 5 builds a new mesh smooth-shaded.
+SHADING = "flat: each triangle's own normal (the mesh has no normals)"
 ENCODING_CYCLES = (f"linear radiance x {BLENDER_SPOT_SCALE} (Blender's spot watts) x exposure {EXPOSURE}, "
                    "clipped, sRGB, rounded to 8 bits")
 
 
 class CacheMismatch(Exception):
-    """A cached render was made for another scene, poses, resolution, light or encoding (one-line message)."""
+    """A cached render was made for another scene, poses, resolution, light, shading or encoding (one-line message)."""
 
 
 def mvpd_spot(material: str = "principled", bounces: int = 16) -> Illumination:
@@ -119,13 +122,13 @@ def made_for(scene_sha: str, poses: np.ndarray, encoding: str) -> dict[str, Any]
     """What a cached render is valid for (compared field by field by `check_made_for`)."""
     sensor = Sensor()
     return {"scene_sha256": scene_sha, "poses_sha256": poses_hash(poses), "resolution": [sensor.width, sensor.height],
-            "light": light_record(), "encoding": encoding}
+            "light": light_record(), "shading": SHADING, "encoding": encoding}
 
 
 def check_made_for(path: Path, recorded: dict[str, Any] | None, expected: dict[str, Any], flag: str) -> None:
     """Raise CacheMismatch (one line: the file, the first field that differs, the flag) unless they agree."""
     if recorded is None:
-        raise CacheMismatch(f"{path}: no 'made_for' record (scene, poses, resolution, light, encoding); "
+        raise CacheMismatch(f"{path}: no 'made_for' record (scene, poses, resolution, light, shading, encoding); "
                             f"render it anew with {flag}")
     for field, value in expected.items():
         if recorded.get(field) != value:

@@ -15,7 +15,8 @@ bounces of every kind, Principled BSDF (specular IOR level 1.0 = Blender 3's spe
 roughness 0.5) on the scan's colour (here the vertex colours), persistent data on. Differences, on purpose:
 no world light (our model has none; Blender's startup world adds a dim grey), the pixel filter narrowed to
 0.01 px so that a pixel samples its centre as our ray caster does (the comparison is about light, not
-anti-aliasing), no dithering, linear output (the benchmark applies the exposure and sRGB itself).
+anti-aliasing), flat shading (the mesh has no normals; glTF gives such a mesh flat normals, where
+bpy 5 would build it smooth), no dithering, linear output (the benchmark applies the exposure and sRGB itself).
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ def build_scene(folder: Path, settings: dict) -> tuple[bpy.types.Object, bpy.typ
     mesh.polygons.foreach_set("loop_start", np.arange(0, faces.size, 3, dtype=np.int32))
     mesh.polygons.foreach_set("loop_total", np.full(len(faces), 3, np.int32))
     mesh.update(calc_edges=True)
+    mesh.polygons.foreach_set("use_smooth", np.zeros(len(faces), bool))  # flat: the mesh has no normals
     attribute = mesh.color_attributes.new("albedo", "FLOAT_COLOR", "POINT")
     rgba = np.ones((len(vertices), 4), np.float32)
     rgba[:, :3] = colors

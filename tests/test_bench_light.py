@@ -42,6 +42,7 @@ def expected(bench, poses=None):
     ("poses_sha256", lambda v: "0" * 64),
     ("resolution", lambda v: [320, 240]),
     ("light", lambda v: {**v, "power_w": 200.0}),
+    ("shading", lambda v: "smooth"),
     ("encoding", lambda v: v.replace("exposure 4.0", "exposure 2.0")),
 ])
 def test_a_cache_made_for_something_else_is_refused_naming_the_field_and_the_flag(bench, field, change):
