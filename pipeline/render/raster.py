@@ -28,6 +28,7 @@ CLUSTER_SIZE = 64  # triangles per cluster: small boxes cull well, and 16 k clus
 TILE = 8  # pixels per side of the occlusion tiles
 SPAN_MARGIN = 1e-3  # pixels: a row's columns are tested this far beyond its edges' zeros (see _draw_triangle)
 SMALL_BOX = 4  # pixels: a triangle's box of at most this many pixel centres is tested pixel by pixel
+FACING_AWAY_RUN = 4  # facing-away triangles of a cluster, consecutive, whose joint box is tested before them
 _BEHIND = 1e-6  # metres: a cluster corner nearer than this to the camera plane makes the cluster cover the image
 
 
@@ -127,46 +128,52 @@ class Rasterizer:
 def _cull_clusters(low, high, pose, pixel_x, pixel_y, fx, fy, rects, nearest):  # pragma: no cover (compiled)
     """Indices of the clusters whose boxes reach into the view (in front of the camera, inside the outermost
     pixel rays); for each, its pixel rectangle (row0, row1, col0, col1, inclusive) and nearest planar depth."""
-    height, width = len(pixel_y), len(pixel_x)
-    x0, x1, y0, y1 = pixel_x[0], pixel_x[-1], pixel_y[0], pixel_y[-1]
-    margin = 1e-9
     inside = np.empty(len(low), np.int64)
     count = 0
     for cluster in range(len(low)):
-        z_min, z_max = np.inf, -np.inf
-        left = right = above = below = True  # every corner outside that side of the view
-        u_min, u_max, v_min, v_max = np.inf, -np.inf, np.inf, -np.inf
-        for corner in range(8):
-            px = high[cluster, 0] if corner & 1 else low[cluster, 0]
-            py = high[cluster, 1] if corner & 2 else low[cluster, 1]
-            pz = high[cluster, 2] if corner & 4 else low[cluster, 2]
-            px, py, pz = px - pose[0, 3], py - pose[1, 3], pz - pose[2, 3]
-            x = pose[0, 0] * px + pose[1, 0] * py + pose[2, 0] * pz
-            y = pose[0, 1] * px + pose[1, 1] * py + pose[2, 1] * pz
-            z = pose[0, 2] * px + pose[1, 2] * py + pose[2, 2] * pz
-            z_min, z_max = min(z_min, z), max(z_max, z)
-            left &= x < (x0 - margin) * z
-            right &= x > (x1 + margin) * z
-            above &= y < (y0 - margin) * z
-            below &= y > (y1 + margin) * z
-            if z > _BEHIND:
-                u, v = (x / z - x0) * fx, (y / z - y0) * fy
-                u_min, u_max, v_min, v_max = min(u_min, u), max(u_max, u), min(v_min, v), max(v_max, v)
-        if z_max <= 0.0 or left or right or above or below:
+        seen, top, bottom, left, right, z_min = _box_view(low[cluster], high[cluster], pose, pixel_x, pixel_y, fx, fy)
+        if not seen:
             continue
-        if z_min <= _BEHIND:  # the box reaches the camera plane: it may cover any pixel
-            rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3] = 0, height - 1, 0, width - 1
-        else:
-            rects[cluster, 0] = max(int(np.floor(v_min)), 0)
-            rects[cluster, 1] = min(int(np.ceil(v_max)), height - 1)
-            rects[cluster, 2] = max(int(np.floor(u_min)), 0)
-            rects[cluster, 3] = min(int(np.ceil(u_max)), width - 1)
-            if rects[cluster, 0] > rects[cluster, 1] or rects[cluster, 2] > rects[cluster, 3]:
-                continue
-        nearest[cluster] = max(z_min, 0.0)
+        rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3] = top, bottom, left, right
+        nearest[cluster] = z_min
         inside[count] = cluster
         count += 1
     return inside[:count]
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _box_view(low, high, pose, pixel_x, pixel_y, fx, fy):  # pragma: no cover (compiled)
+    """Whether a world-frame box reaches into the view (in front of the camera, inside the outermost pixel
+    rays), and if so its pixel rectangle (row0, row1, col0, col1, inclusive) and nearest planar depth (>= 0)."""
+    height, width = len(pixel_y), len(pixel_x)
+    x0, x1, y0, y1 = pixel_x[0], pixel_x[-1], pixel_y[0], pixel_y[-1]
+    margin = 1e-9
+    z_min, z_max = np.inf, -np.inf
+    left = right = above = below = True  # every corner outside that side of the view
+    u_min, u_max, v_min, v_max = np.inf, -np.inf, np.inf, -np.inf
+    for corner in range(8):
+        px = high[0] if corner & 1 else low[0]
+        py = high[1] if corner & 2 else low[1]
+        pz = high[2] if corner & 4 else low[2]
+        px, py, pz = px - pose[0, 3], py - pose[1, 3], pz - pose[2, 3]
+        x = pose[0, 0] * px + pose[1, 0] * py + pose[2, 0] * pz
+        y = pose[0, 1] * px + pose[1, 1] * py + pose[2, 1] * pz
+        z = pose[0, 2] * px + pose[1, 2] * py + pose[2, 2] * pz
+        z_min, z_max = min(z_min, z), max(z_max, z)
+        left &= x < (x0 - margin) * z
+        right &= x > (x1 + margin) * z
+        above &= y < (y0 - margin) * z
+        below &= y > (y1 + margin) * z
+        if z > _BEHIND:
+            u, v = (x / z - x0) * fx, (y / z - y0) * fy
+            u_min, u_max, v_min, v_max = min(u_min, u), max(u_max, u), min(v_min, v), max(v_max, v)
+    if z_max <= 0.0 or left or right or above or below:
+        return False, 0, 0, 0, 0, 0.0
+    if z_min <= _BEHIND:  # the box reaches the camera plane: it may cover any pixel
+        return True, 0, height - 1, 0, width - 1, max(z_min, 0.0)
+    top, bottom = max(int(np.floor(v_min)), 0), min(int(np.ceil(v_max)), height - 1)
+    left_column, right_column = max(int(np.floor(u_min)), 0), min(int(np.ceil(u_max)), width - 1)
+    return top <= bottom and left_column <= right_column, top, bottom, left_column, right_column, z_min
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
@@ -201,6 +208,9 @@ def _draw(corners, planes, starts, order, rank, rects, nearest, pose, pixel_x, p
     one facing the camera, so by then most of them are occluded and never reach the pixel loop. A pixel's
     winner stays the one drawing in `order` gives (the nearest; of equal ones, the first in `order`), as
     the second pass breaks ties by that order (`_drawn_before`): which pass draws a triangle changes no winner.
+    They are tested FACING_AWAY_RUN at a time by their joint box: the cluster's box is filled by its facing
+    triangles (the sides of a box meet its front), so it is rarely behind the z-buffer, while the box of a few
+    neighbouring triangles (Morton order) often is.
     `deferred` (one slot per triangle) and `groups` (two per cluster) are scratch space for the facing-away
     triangles of each cluster."""
     width = len(pixel_x)
@@ -241,14 +251,38 @@ def _draw(corners, planes, starts, order, rank, rects, nearest, pose, pixel_x, p
     for group in range(group_count):
         cluster, group_stop = groups[group, 0], groups[group, 1]
         rect = (rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3])
-        if not _occluded(rect, nearest[cluster], row_start, row_stop, inverse_depth, tiles, dirty):
-            for triangle in deferred[group_start:group_stop]:
+        for run in range(group_start, group_stop, FACING_AWAY_RUN):
+            run_stop = min(run + FACING_AWAY_RUN, group_stop)
+            low_x = low_y = low_z = np.inf
+            high_x = high_y = high_z = -np.inf
+            for triangle in deferred[run:run_stop]:
+                for k in range(3):
+                    low_x, high_x = min(low_x, corners[triangle, k, 0]), max(high_x, corners[triangle, k, 0])
+                    low_y, high_y = min(low_y, corners[triangle, k, 1]), max(high_y, corners[triangle, k, 1])
+                    low_z, high_z = min(low_z, corners[triangle, k, 2]), max(high_z, corners[triangle, k, 2])
+            if _box_occluded((low_x, low_y, low_z), (high_x, high_y, high_z), rect, pose, pixel_x, pixel_y, fx, fy,
+                             row_start, row_stop, inverse_depth, tiles, dirty):
+                continue
+            for triangle in deferred[run:run_stop]:
                 a = _to_camera(corners, triangle, 0, pose)
                 b = _to_camera(corners, triangle, 1, pose)
                 c = _to_camera(corners, triangle, 2, pose)
                 _draw_triangle(a, b, c, _determinant(a, b, c), triangle, rect, pixel_x, pixel_y, fx, fy, row_start,
                                row_stop, inverse_depth, winner, tiles, dirty, True, starts, rank)
         group_start = group_stop
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _box_occluded(low, high, rect, pose, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth, tiles,
+                  dirty):  # pragma: no cover (compiled)
+    """True when the world box low..high of some of a cluster's triangles (drawn within the cluster's pixel
+    rectangle `rect`) lies outside the view or behind every pixel it covers in the band."""
+    seen, top, bottom, left, right, z_min = _box_view(low, high, pose, pixel_x, pixel_y, fx, fy)
+    top, bottom = max(top, rect[0], row_start), min(bottom, rect[1], row_stop - 1)
+    left, right = max(left, rect[2]), min(right, rect[3])
+    if not seen or top > bottom or left > right:
+        return True
+    return _occluded((top, bottom, left, right), z_min, row_start, row_stop, inverse_depth, tiles, dirty)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")

@@ -249,3 +249,40 @@ def test_closest_hits_within_a_reach_are_those_without_it_and_farther_ones_are_m
     for everywhere, reached in ((t, t_near), (face, face_near), (barycentric, barycentric_near), (normal, normal_near)):
         assert np.array_equal(everywhere[within], reached[within])
     assert (face_near[~within] == -1).all() and np.isinf(t_near[~within]).all()
+
+
+def _sheet(low: tuple[float, float], high: tuple[float, float], depth: float, cells: int, facing: bool,
+           hole: tuple[float, float] | None = None) -> np.ndarray:
+    """(T, 3, 3) triangle corners of a grid of cells x cells squares at planar depth `depth`, facing the
+    camera at the origin (or away from it), without the squares whose centres lie within `hole` of x, y."""
+    xs, ys = np.linspace(low[0], high[0], cells + 1), np.linspace(low[1], high[1], cells + 1)
+    triangles = []
+    for i in range(cells):
+        for j in range(cells):
+            centre = ((xs[i] + xs[i + 1]) / 2, (ys[j] + ys[j + 1]) / 2)
+            if hole is not None and all(hole[0] < value < hole[1] for value in centre):
+                continue
+            p, q, r, s = ([xs[i], ys[j], depth], [xs[i + 1], ys[j], depth], [xs[i + 1], ys[j + 1], depth],
+                          [xs[i], ys[j + 1], depth])
+            # (b - a) x (c - a) along +z points away from a camera looking down +z.
+            triangles += [[p, r, q], [p, s, r]] if facing else [[p, q, r], [p, r, s]]
+    return np.array(triangles)
+
+
+def test_facing_away_triangles_win_where_nothing_nearer_covers_them() -> None:
+    """An open mesh seen from behind: a sheet facing away seen through a hole in a wall that faces the camera,
+    and another one facing away in front of that wall. The second pass must still draw them where they
+    are the nearest (through the hole, and over the wall), as the bare test finds."""
+    from pipeline.render.raster import ClusteredMesh
+
+    wall = _sheet((-1.2, -1.2), (1.2, 1.2), 1.5, 12, facing=True, hole=(-0.45, 0.45))
+    behind = _sheet((-3.0, -3.0), (3.0, 3.0), 3.0, 10, facing=False)  # seen through the wall's hole
+    corners = np.concatenate([wall, behind, _sheet((-1.0, -0.9), (-0.5, 0.9), 1.0, 4, facing=False)])
+    vertices, faces = corners.reshape(-1, 3), np.arange(len(corners) * 3).reshape(-1, 3)
+    winner, expected = _bare_test_winners(vertices, faces, Camera(48, 36, 30.0, 30.0, 23.5, 17.5), np.eye(4))
+    assert np.array_equal(winner, expected)
+    face_ids = ClusteredMesh(vertices, faces).face_ids
+    won = face_ids[expected[expected >= 0]]  # mesh indices of the pixels' triangles
+    assert (won < len(wall)).sum() > 100
+    assert ((won >= len(wall)) & (won < len(wall) + len(behind))).sum() > 30  # through the hole
+    assert (won >= len(wall) + len(behind)).sum() > 30  # nearer than the wall
