@@ -488,7 +488,7 @@ def turn_of_mitsuba(python: str, folder: Path) -> dict[str, Any] | None:
     """Mitsuba 3 direct 1 spp and AOV (depth + shape id) on the exported poses, warm (bench_light's peer)."""
     from bench_light import run_peer
 
-    if not run_peer(python, "peer_mitsuba.py", folder, folder / "mitsuba.log"):
+    if not run_peer(python, "peer_mitsuba.py", folder, "mitsuba", MITSUBA_RENDERS, folder / "mitsuba.log"):
         return None
     runs = {render["name"]: np.load(folder / f"mitsuba_{render['name']}.npz") for render in MITSUBA_RENDERS}
     return {name: {"wall_s": float(np.median(run["seconds"])), "cpu_s": float(np.median(run["cpu_seconds"]))}
@@ -504,16 +504,16 @@ def summary(values: list[float]) -> dict[str, Any]:
 def versus_mitsuba(frames: int, repeats: int, threads: int, baseline: Path | None, detail: float = 1.0) -> dict[str, Any]:
     """Ours (this tree, and `baseline`'s when given) and warm Mitsuba 3 taking turns `repeats` times on the
     same poses of the bench house: CPU and wall per frame, median of the turns with spread; ratios by CPU."""
-    from bench_light import export, mitsuba_python, peer_version
+    from bench_light import export, peer_python, peer_version
 
     folder = Path(tempfile.mkdtemp(prefix="bench_render_mitsuba_"))
     try:
         scene, all_poses, pose_source = planned_poses(frames, folder, detail)
         poses = spread(all_poses, frames)
         (folder / "house.pkl").write_bytes(pickle.dumps((scene, poses)))
-        export(scene, poses, folder / "peer", [], MITSUBA_RENDERS, threads)
+        export(scene, poses, folder / "peer", threads)
         trees = {"ours": Path(__file__).resolve().parents[1], **({"baseline": baseline} if baseline else {})}
-        python = mitsuba_python()
+        python = peer_python("MITSUBA_PYTHON", "/work/venvs/mitsuba/bin/python")
         turns: dict[str, list[dict[str, Any]]] = {name: [] for name in [*trees, "mitsuba"]}
         loads = []
         sides = [*trees, "mitsuba"]
