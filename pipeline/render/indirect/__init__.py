@@ -7,8 +7,8 @@ and the glossy term its lobe sends to the eye; the shader reflects both (materia
 1. light_paths.py: virtual lights where the spot's rays land, bounce after bounce (the directions: sampling.py).
 2. grid.py, shadow_rays.py: every `gather_stride` pixels a gather point sums what the lights of its interleaved
    subset bring it past one shadow ray each; near_field.py brings back what the lights' clamp leaves out.
-3. filter.py: each gather point averages the block of points around it (every subset once), weighted by how
-   alike the surfaces are, and then once more.
+3. filter.py: each gather point takes the plane fitted through the block of points around it (every subset once),
+   weighted by how alike the surfaces are, at its own place; and then once more.
 4. upsample.py: every block of pixels mixes its four nearest gather points under the same weights; orphan blocks
    (a surface narrower than the stride) gather on a finer grid of their own (gather.py, `IndirectGather`).
 
