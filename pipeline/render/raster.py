@@ -431,18 +431,28 @@ def _resolve(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_s
     """Per pixel of rows row_start..row_stop: the ray (camera centre, R (x, y, 1) in float32, as the ray cast
     builds it) against its winning triangle with Embree's Moeller-Trumbore arithmetic (float32): t, u, v and
     the geometric normal (v1 - v0) x (v2 - v0), normalised; a miss as `EmbreeMesh.cast_rows` writes it.
-    What depends on the triangle alone is computed once per run of pixels with the same winner."""
+    What depends on the triangle alone is computed once per run of pixels with the same winner.
+
+    A row's directions are computed first, in a pass of their own that the compiler vectorises: R[k, 0] x + R[k, 1] y
+    + R[k, 2] left to right in float64 as before (so the same bits), with the products R[k, 0] x taken once per
+    frame and R[k, 1] y once per row (~15 % of the resolve's time, against computing them per pixel)."""
     width = len(pixel_x)
     ox, oy, oz = np.float32(pose[0, 3]), np.float32(pose[1, 3]), np.float32(pose[2, 3])
     zero = np.float32(0.0)
+    column_terms = np.empty((3, width), np.float64)  # R[k, 0] x per column
+    for k in range(3):
+        for column in range(width):
+            column_terms[k, column] = pose[k, 0] * pixel_x[column]
+    rays = np.empty((3, width), np.float32)  # the row's directions, one component per row of the scratch
     current, frame, unit = -1, _triangle_frame(np.zeros((3, 3), np.float32), ox, oy, oz), (zero, zero, zero)
     for row in range(row_start, row_stop):
         y = pixel_y[row]
+        for k in range(3):
+            row_term, offset = pose[k, 1] * y, pose[k, 2]
+            for column in range(width):
+                rays[k, column] = np.float32(column_terms[k, column] + row_term + offset)
         for column in range(width):
-            x = pixel_x[column]
-            dx = np.float32(pose[0, 0] * x + pose[0, 1] * y + pose[0, 2])
-            dy = np.float32(pose[1, 0] * x + pose[1, 1] * y + pose[1, 2])
-            dz = np.float32(pose[2, 0] * x + pose[2, 1] * y + pose[2, 2])
+            dx, dy, dz = rays[0, column], rays[1, column], rays[2, column]
             direction[row, column, 0], direction[row, column, 1], direction[row, column, 2] = dx, dy, dz
             triangle = winner[row, column]
             t = zero
