@@ -435,7 +435,7 @@ def _resolve(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_s
 
     A row's directions are computed first, in a pass of their own that the compiler vectorises: R[k, 0] x + R[k, 1] y
     + R[k, 2] left to right in float64 as before (so the same bits), with the products R[k, 0] x taken once per
-    frame and R[k, 1] y once per row (~15 % of the resolve's time, against computing them per pixel)."""
+    frame and R[k, 1] y once per row: 11-22 % less time than computing them per pixel (bench house, 1 thread)."""
     width = len(pixel_x)
     ox, oy, oz = np.float32(pose[0, 3]), np.float32(pose[1, 3]), np.float32(pose[2, 3])
     zero = np.float32(0.0)
