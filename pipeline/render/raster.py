@@ -4,8 +4,13 @@ Why: a camera ray per pixel costs a BVH walk per pixel (~60 ms of CPU for 640x48
 house), while a z-buffer pays per visible triangle. The mesh is split once into clusters of nearby
 triangles; per frame, clusters outside the view are dropped, the rest are drawn nearest first, and a
 cluster whose box lies behind everything already drawn in the 8 x 8-pixel tiles it covers is skipped
-(occlusion culling), so the triangles of rooms behind walls are never set up. Triangles facing away from
-the camera are drawn last, when the surfaces in front of them are in the z-buffer and cull them.
+(occlusion culling), so the triangles of rooms behind walls are never set up; inside a cluster, runs of RUN
+triangles are culled the same way by their joint box. Triangles facing away from the camera are drawn last,
+when the surfaces in front of them are in the z-buffer and cull them. Frame-to-frame coherence: the triangles
+that won pixels in the previous frame (5 cm away along a video) are drawn before all others, so the z-buffer
+is nearly final when the clusters and runs are tested against it. The winner of a pixel does not depend on
+that history: it is the nearest triangle, of equal ones the first in this frame's drawing order, however the
+triangles are drawn, so a frame rendered after any other is bit for bit the frame rendered first.
 
 The coverage test is the ray-triangle test itself, not a projection: with a, b, c the corners relative
 to the camera, the ray d of a pixel centre hits the triangle at t > 0 exactly when det(a, b, d),
@@ -13,7 +18,7 @@ det(b, c, d) and det(c, a, d) all have the sign of det(a, b, c) (homogeneous ras
 Greer 1997). No clipping is needed (corners behind the camera are fine), hits nearer than the sensor's
 `near` are found like the ray cast finds them (VideoRenderer.trace turns them into misses), and a shared
 edge is computed bit for bit alike (negated) by both its triangles, so no pixel falls between them (ties
-on the edge go to the triangle first in the drawing order: clusters nearest first, then mesh order). The
+on the edge go to the triangle first in the drawing order: clusters nearest first, then reordered index). The
 winning triangle of each pixel is then intersected with the pixel's ray by Embree's own Moeller-Trumbore
 arithmetic in float32, so depth, barycentrics and normal are the ray cast's to float precision (measured
 in benchmarks/bench_render.py).
@@ -29,6 +34,7 @@ TILE = 8  # pixels per side of the occlusion tiles
 SPAN_MARGIN = 1e-3  # pixels: a row's columns are tested this far beyond its edges' zeros (see _draw_triangle)
 SMALL_BOX = 4  # pixels: a triangle's box of at most this many pixel centres is tested pixel by pixel
 FACING_AWAY_RUN = 4  # facing-away triangles of a cluster, consecutive, whose joint box is tested before them
+RUN = 4  # consecutive triangles of a cluster whose joint box is tested before any of them is set up
 _BEHIND = 1e-6  # metres: a cluster corner nearer than this to the camera plane makes the cluster cover the image
 
 
@@ -42,6 +48,8 @@ class ClusteredMesh:
         planes: (F, 4) float32 plane of each triangle: N and N . v0, N = (v1 - v0) x (v2 - v0) (which side
             of it a camera lies on tells whether the triangle faces it, before its corners are transformed).
         low, high: (C, 3) float64 bounding boxes of the clusters.
+        run_centres, run_extents: (R, 3) float64 centre and half size of the bounding box of each run of RUN
+            consecutive triangles (a cluster holds whole runs).
     """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
@@ -56,6 +64,11 @@ class ClusteredMesh:
         self.starts = np.append(np.arange(0, len(faces), CLUSTER_SIZE), len(faces)).astype(np.int64)
         self.low = np.minimum.reduceat(self.corners.min(axis=1), self.starts[:-1]).astype(np.float64)
         self.high = np.maximum.reduceat(self.corners.max(axis=1), self.starts[:-1]).astype(np.float64)
+        run_starts = np.arange(0, len(faces), RUN)
+        run_low = np.minimum.reduceat(self.corners.min(axis=1), run_starts).astype(np.float64)
+        run_high = np.maximum.reduceat(self.corners.max(axis=1), run_starts).astype(np.float64)
+        self.run_centres = (run_low + run_high) / 2
+        self.run_extents = (run_high - run_low) / 2
 
 
 def _morton_codes(points: np.ndarray) -> np.ndarray:
@@ -77,8 +90,9 @@ def _spread_bits(values: np.ndarray) -> np.ndarray:
 class Rasterizer:
     """Primary hits of one camera on one clustered mesh, in row bands (each band an independent z-buffer).
 
-    Buffers are per camera and reused from frame to frame; `visible_clusters` runs once per frame, then
-    `draw_band` and `resolve_band` may run on different bands in parallel (they release the GIL).
+    Buffers are per camera and reused from frame to frame (a band's winners are the first triangles its next
+    frame draws); `visible_clusters` runs once per frame, then `draw_band` and `resolve_band` may run on
+    different bands in parallel (they release the GIL).
     """
 
     def __init__(self, mesh: ClusteredMesh, pixel_x: np.ndarray, pixel_y: np.ndarray, fx: float, fy: float):
@@ -90,7 +104,7 @@ class Rasterizer:
         self.pixel_y = np.ascontiguousarray(pixel_y, np.float64)
         height, width = len(pixel_y), len(pixel_x)
         self.inverse_depth = np.empty((height, width), np.float32)
-        self.winner = np.empty((height, width), np.int64)
+        self.winner = np.full((height, width), -1, np.int64)  # the previous frame's, until a band is drawn anew
         # Per band of rows: occlusion tiles, their dirty flags, and `_draw`'s scratch space.
         self._scratch: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
         self.order = np.empty(0, np.int64)
@@ -104,6 +118,7 @@ class Rasterizer:
         inside = _cull_clusters(self.mesh.low, self.mesh.high, pose, self.pixel_x, self.pixel_y, *self.focal,
                                 self.rects, self.nearest)
         self.order = inside[np.argsort(self.nearest[inside], kind="stable")]
+        self.rank[:] = -1  # outside the view
         self.rank[self.order] = np.arange(len(self.order))
 
     def draw_band(self, rows: slice, camera_to_world: np.ndarray) -> None:
@@ -112,8 +127,11 @@ class Rasterizer:
         if band not in self._scratch:
             shape = (-(-(rows.stop - rows.start) // TILE), -(-len(self.pixel_x) // TILE))
             self._scratch[band] = (np.empty(shape, np.float32), np.empty(shape, np.bool_),
-                                   np.empty(len(self.mesh.corners), np.int64), np.empty_like(self.rects[:, :2]))
-        _draw(self.mesh.corners, self.mesh.planes, self.mesh.starts, self.order, self.rank, self.rects, self.nearest,
+                                   np.empty(len(self.mesh.corners), np.int64), np.empty_like(self.rects[:, :2]),
+                                   np.empty((rows.stop - rows.start) * len(self.pixel_x), np.int64),
+                                   np.zeros(len(self.mesh.corners), np.bool_))
+        _draw(self.mesh.corners, self.mesh.planes, self.mesh.starts, self.mesh.run_centres, self.mesh.run_extents,
+              self.order, self.rank, self.rects, self.nearest,
               np.ascontiguousarray(camera_to_world, np.float64), self.pixel_x, self.pixel_y, *self.focal, rows.start,
               rows.stop, self.inverse_depth, self.winner, *self._scratch[band])
 
@@ -186,40 +204,51 @@ def _occluded(rect, nearest, row_start, row_stop, inverse_depth, tiles, dirty): 
     top, bottom = max(rect[0], row_start), min(rect[1], row_stop - 1)
     for tile_row in range((top - row_start) // TILE, (bottom - row_start) // TILE + 1):
         for tile_column in range(rect[2] // TILE, rect[3] // TILE + 1):
-            if dirty[tile_row, tile_column]:
-                farthest = np.inf
-                for row in range(row_start + tile_row * TILE, min(row_start + (tile_row + 1) * TILE, row_stop)):
-                    for column in range(tile_column * TILE, min((tile_column + 1) * TILE, width)):
-                        farthest = min(farthest, inverse_depth[row, column])
-                tiles[tile_row, tile_column] = farthest
-                dirty[tile_row, tile_column] = False
-            if tiles[tile_row, tile_column] < closest:
+            if tiles[tile_row, tile_column] >= closest:
+                continue  # a stale value suffices: the tile's inverse depths only grow while a band is drawn
+            if not dirty[tile_row, tile_column]:
+                return False
+            farthest = np.inf
+            for row in range(row_start + tile_row * TILE, min(row_start + (tile_row + 1) * TILE, row_stop)):
+                for column in range(tile_column * TILE, min((tile_column + 1) * TILE, width)):
+                    farthest = min(farthest, inverse_depth[row, column])
+            tiles[tile_row, tile_column] = farthest
+            dirty[tile_row, tile_column] = False
+            if farthest < closest:
                 return False
     return True
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _draw(corners, planes, starts, order, rank, rects, nearest, pose, pixel_x, pixel_y, fx, fy, row_start, row_stop,
-          inverse_depth, winner, tiles, dirty, deferred, groups):  # pragma: no cover (compiled)
+def _draw(corners, planes, starts, run_centres, run_extents, order, rank, rects, nearest, pose, pixel_x, pixel_y, fx, fy,
+          row_start, row_stop, inverse_depth, winner, tiles, dirty, deferred, groups, hints, drawn):  # pragma: no cover (compiled)
     """Z-buffer (by inverse planar depth 1/t, 0 = nothing) the triangles of the clusters in `order` into rows
     row_start..row_stop; `winner` gets the reordered index of the nearest triangle per pixel, or -1.
 
-    Triangles facing away from the camera are drawn after all others: in a closed surface they lie behind
-    one facing the camera, so by then most of them are occluded and never reach the pixel loop. A pixel's
-    winner stays the one drawing in `order` gives (the nearest; of equal ones, the first in `order`), as
-    the second pass breaks ties by that order (`_drawn_before`): which pass draws a triangle changes no winner.
-    They are tested FACING_AWAY_RUN at a time by their joint box: the cluster's box is filled by its facing
-    triangles (the sides of a box meet its front), so it is rarely behind the z-buffer, while the box of a few
-    neighbouring triangles (Morton order) often is.
+    The winners `winner` holds on entry (the previous frame's, along a video a few centimetres away) are drawn
+    first: they are nearly this frame's, so the z-buffer is nearly final before the clusters are tested
+    against it, and most hidden clusters and triangles are culled. Then the clusters are drawn nearest first,
+    without the triangles already drawn. Triangles facing away from the camera are drawn after all others: in
+    a closed surface they lie behind one facing the camera, so by then most of them are occluded and never
+    reach the pixel loop. They are tested FACING_AWAY_RUN at a time by their joint box: the cluster's box is
+    filled by its facing triangles (the sides of a box meet its front), so it is rarely behind the z-buffer,
+    while the box of a few neighbouring triangles (Morton order) often is.
+
+    Whatever the order, a pixel's winner is the nearest triangle, of equal ones the first in the drawing order
+    of this frame (clusters by rank, then index: `_drawn_before`), as every draw breaks ties by that order and
+    a culled triangle lies strictly behind what its pixels hold: a frame is the same whether its band was
+    drawn before, from any pose, or not.
     `deferred` (one slot per triangle) and `groups` (two per cluster) are scratch space for the facing-away
-    triangles of each cluster."""
-    width = len(pixel_x)
-    for row in range(row_start, row_stop):
-        for column in range(width):
-            inverse_depth[row, column] = 0.0
-            winner[row, column] = -1
+    triangles of each cluster, `hints` (one slot per pixel) for the previous winners and `drawn` (one flag per
+    triangle, all False between calls) marks them."""
+    hint_count = _take_previous_winners(rank, row_start, row_stop, inverse_depth, winner, hints, drawn)
     tiles[:, :] = 0.0
     dirty[:, :] = False
+    for triangle in hints[:hint_count]:
+        cluster = triangle // CLUSTER_SIZE
+        rect = (rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3])
+        _set_up_and_draw(corners, triangle, pose, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
+                         winner, tiles, dirty, starts, rank, False)
     ox, oy, oz = pose[0, 3], pose[1, 3], pose[2, 3]
     count = group_count = 0
     for cluster in order:
@@ -229,21 +258,21 @@ def _draw(corners, planes, starts, order, rank, rects, nearest, pose, pixel_x, p
         if _occluded(rect, nearest[cluster], row_start, row_stop, inverse_depth, tiles, dirty):
             continue
         group_start = count
-        for triangle in range(starts[cluster], starts[cluster + 1]):
-            # Facing away when N . (v0 - o) > 0 (o: the camera centre), which is det(a, b, c) but for rounding:
-            # a triangle seen nearly edge-on may land in either pass, which changes no winner (see above).
-            if planes[triangle, 3] > planes[triangle, 0] * ox + planes[triangle, 1] * oy + planes[triangle, 2] * oz:
-                deferred[count] = triangle  # drawn in the second pass
-                count += 1
+        for run in range(starts[cluster] // RUN, -(-starts[cluster + 1] // RUN)):
+            if _run_hidden(run_centres[run], run_extents[run], rect, pose, pixel_x, pixel_y, fx, fy, row_start,
+                           row_stop, inverse_depth, tiles, dirty):
                 continue
-            # Scalars, not a (3, 3) array and its row views: a triangle's setup is a few dozen flops, and
-            # array views and a call per triangle cost as much again.
-            a = _to_camera(corners, triangle, 0, pose)
-            b = _to_camera(corners, triangle, 1, pose)
-            c = _to_camera(corners, triangle, 2, pose)
-            det = _determinant(a, b, c)
-            _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop,
-                           inverse_depth, winner, tiles, dirty, False, starts, rank)
+            for triangle in range(run * RUN, min(run * RUN + RUN, starts[cluster + 1])):
+                if drawn[triangle]:
+                    continue
+                # Facing away when N . (v0 - o) > 0 (o: the camera centre), which is det(a, b, c) but for
+                # rounding: a triangle seen nearly edge-on may land in either pass, which changes no winner.
+                if planes[triangle, 3] > planes[triangle, 0] * ox + planes[triangle, 1] * oy + planes[triangle, 2] * oz:
+                    deferred[count] = triangle  # drawn in the second pass
+                    count += 1
+                    continue
+                _set_up_and_draw(corners, triangle, pose, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop,
+                                 inverse_depth, winner, tiles, dirty, starts, rank, True)
         if count > group_start:
             groups[group_count, 0], groups[group_count, 1] = cluster, count
             group_count += 1
@@ -264,12 +293,80 @@ def _draw(corners, planes, starts, order, rank, rects, nearest, pose, pixel_x, p
                              row_start, row_stop, inverse_depth, tiles, dirty):
                 continue
             for triangle in deferred[run:run_stop]:
-                a = _to_camera(corners, triangle, 0, pose)
-                b = _to_camera(corners, triangle, 1, pose)
-                c = _to_camera(corners, triangle, 2, pose)
-                _draw_triangle(a, b, c, _determinant(a, b, c), triangle, rect, pixel_x, pixel_y, fx, fy, row_start,
-                               row_stop, inverse_depth, winner, tiles, dirty, True, starts, rank)
+                _set_up_and_draw(corners, triangle, pose, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop,
+                                 inverse_depth, winner, tiles, dirty, starts, rank, True)
         group_start = group_stop
+    for triangle in hints[:hint_count]:
+        drawn[triangle] = False
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _run_hidden(centre, extent, rect, pose, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth, tiles,
+                dirty):  # pragma: no cover (compiled)
+    """True when the world box centre +- extent (a run of triangles drawn within their cluster's pixel rectangle
+    `rect`) holds no pixel centre of the band or lies behind every pixel it covers there. The box is bounded by
+    its camera-frame bounding box (the centre rotated, the half sizes through the rotation's absolute values),
+    a sixth of `_box_view`'s work; its pixel rectangle reaches 2 SPAN_MARGIN beyond it, so it holds that of
+    each of its triangles (`_draw_triangle`) whatever the rounding (~1e-12 pixels)."""
+    px, py, pz = centre[0] - pose[0, 3], centre[1] - pose[1, 3], centre[2] - pose[2, 3]
+    x = pose[0, 0] * px + pose[1, 0] * py + pose[2, 0] * pz
+    y = pose[0, 1] * px + pose[1, 1] * py + pose[2, 1] * pz
+    z = pose[0, 2] * px + pose[1, 2] * py + pose[2, 2] * pz
+    half_x = abs(pose[0, 0]) * extent[0] + abs(pose[1, 0]) * extent[1] + abs(pose[2, 0]) * extent[2]
+    half_y = abs(pose[0, 1]) * extent[0] + abs(pose[1, 1]) * extent[1] + abs(pose[2, 1]) * extent[2]
+    half_z = abs(pose[0, 2]) * extent[0] + abs(pose[1, 2]) * extent[1] + abs(pose[2, 2]) * extent[2]
+    near, far = z - half_z, z + half_z
+    if far < -_BEHIND:
+        return True  # behind the camera, whatever the rounding (`_draw_triangle` draws nothing there)
+    if near <= _BEHIND:
+        return False  # it may cover any pixel
+    inverse_near, inverse_far = 1.0 / near, 1.0 / far
+    low_x, high_x, low_y, high_y = x - half_x, x + half_x, y - half_y, y + half_y
+    margin = 2.0 * SPAN_MARGIN
+    top = max(rect[0], row_start,
+              int(np.ceil((min(low_y * inverse_near, low_y * inverse_far) - pixel_y[0]) * fy - margin)))
+    bottom = min(rect[1], row_stop - 1,
+                 int(np.floor((max(high_y * inverse_near, high_y * inverse_far) - pixel_y[0]) * fy + margin)))
+    left = max(rect[2], int(np.ceil((min(low_x * inverse_near, low_x * inverse_far) - pixel_x[0]) * fx - margin)))
+    right = min(rect[3], int(np.floor((max(high_x * inverse_near, high_x * inverse_far) - pixel_x[0]) * fx + margin)))
+    if top > bottom or left > right:
+        return True
+    return _occluded((top, bottom, left, right), near, row_start, row_stop, inverse_depth, tiles, dirty)
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _take_previous_winners(rank, row_start, row_stop, inverse_depth, winner, hints,
+                           drawn):  # pragma: no cover (compiled)
+    """Gathers into `hints` (marked in `drawn`) the distinct triangles `winner` holds in rows row_start..row_stop
+    whose clusters are in this frame's view (rank >= 0), and empties those rows; returns how many."""
+    count = 0
+    previous = -1
+    for row in range(row_start, row_stop):
+        for column in range(winner.shape[1]):
+            triangle = winner[row, column]
+            inverse_depth[row, column] = 0.0
+            winner[row, column] = -1
+            if triangle < 0 or triangle == previous or drawn[triangle]:
+                continue
+            previous = triangle
+            if rank[triangle // CLUSTER_SIZE] < 0:  # (ClusteredMesh's clusters hold CLUSTER_SIZE triangles)
+                continue
+            drawn[triangle] = True
+            hints[count] = triangle
+            count += 1
+    return count
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _set_up_and_draw(corners, triangle, pose, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
+                     winner, tiles, dirty, starts, rank, cull):  # pragma: no cover (compiled)
+    """`_draw_triangle` for a triangle of the mesh: its corners taken into the camera frame as scalars (a
+    triangle's setup is a few dozen flops, and (3, 3) arrays, their row views and a call cost as much again)."""
+    a = _to_camera(corners, triangle, 0, pose)
+    b = _to_camera(corners, triangle, 1, pose)
+    c = _to_camera(corners, triangle, 2, pose)
+    _draw_triangle(a, b, c, _determinant(a, b, c), triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop,
+                   inverse_depth, winner, tiles, dirty, starts, rank, cull)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
@@ -319,10 +416,11 @@ def _edge(p, q, sign):  # pragma: no cover (compiled)
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
 def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth, winner,
-                   tiles, dirty, tie_break, starts, rank):  # pragma: no cover (compiled)
+                   tiles, dirty, starts, rank, cull):  # pragma: no cover (compiled)
     """Z-buffer one triangle (corners a, b, c relative to the camera, camera frame; det = det(a, b, c)) into
-    the band's pixels. With `tie_break`, it also wins a pixel held at equal depth by a triangle it comes
-    before in the drawing order.
+    the band's pixels: it wins a pixel it is nearer at, or as near as a triangle it comes before in the drawing
+    order. With `cull`, it is first tested against the occlusion tiles (when it covers more than a few pixel
+    centres) or against its pixels.
 
     The edge planes are scaled by the sign of det(a, b, c), so that inside means all three edge values >= 0.
     Negation is exact in floating point (x * -1 and -(x y + z) = (-x) y + (-z) bit for bit, but for the sign
@@ -346,7 +444,9 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
         right = min(right, int(np.floor((max(xa, xb, xc) - pixel_x[0]) * fx + SPAN_MARGIN)))
         if top > bottom or left > right:
             return
-        if (bottom - top + 1) * (right - left + 1) <= SMALL_BOX:
+        if not cull:
+            pass
+        elif (bottom - top + 1) * (right - left + 1) <= SMALL_BOX:
             if _pixels_occluded(top, bottom, left, right, min(a[2], b[2], c[2]), inverse_depth):
                 return
         elif _occluded((top, bottom, left, right), min(a[2], b[2], c[2]), row_start, row_stop, inverse_depth, tiles, dirty):
@@ -391,8 +491,7 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
             entered = True
             depth = np.float32((w0 + w1 + w2) * inverse_det)  # 1 / t: the plane's N . d over det(a, b, c)
             held = inverse_depth[row, column]
-            if depth > held or (tie_break and depth == held and held > 0.0
-                                and _drawn_before(triangle, winner[row, column], starts, rank)):
+            if depth > held or (depth == held and held > 0.0 and _drawn_before(triangle, winner[row, column], starts, rank)):
                 inverse_depth[row, column] = depth
                 winner[row, column] = triangle
                 dirty[(row - row_start) // TILE, column // TILE] = True

@@ -286,3 +286,81 @@ def test_facing_away_triangles_win_where_nothing_nearer_covers_them() -> None:
     assert (won < len(wall)).sum() > 100
     assert ((won >= len(wall)) & (won < len(wall) + len(behind))).sum() > 30  # through the hole
     assert (won >= len(wall) + len(behind)).sum() > 30  # nearer than the wall
+
+
+def _hits_of(caster: SceneRaycaster, camera: Camera, pose: np.ndarray) -> dict[str, np.ndarray]:
+    hits = caster.cast(camera, pose)
+    return {name: getattr(hits, name).copy() for name in ("depth", "face", "barycentric", "normal", "direction")}
+
+
+def test_a_frame_drawn_after_others_is_the_frame_drawn_first() -> None:
+    """The z-buffer draws the previous frame's winners first (frame-to-frame coherence): a frame must come out
+    bit for bit the same whatever was drawn before it: the previous pose of a walk, a pose far away, or
+    nothing (the first frame of a video, a rerun from its middle); with one band and with two."""
+    from tests.render.tiny_scenes import look_at, room_scene
+
+    scene, camera = room_scene(), Camera(96, 71, 60.0, 60.0, 47.3, 35.9)
+    walk = [look_at(np.array([0.3 + 0.05 * k, 1.0, -1.5 + 0.04 * k]), np.array([0.5 - 0.1 * k, 0.7, 1.0]))
+            for k in range(6)]
+    far = look_at(np.array([-1.0, 1.6, 1.0]), np.array([1.0, 0.2, -1.0]))
+    for threads in (1, 2):
+        warm = SceneRaycaster(scene, threads=threads)
+        warm_frames = [_hits_of(warm, camera, pose) for pose in [*walk, far, walk[2]]]
+        cold_frames = [_hits_of(SceneRaycaster(scene, threads=threads), camera, pose) for pose in [*walk, far, walk[2]]]
+        for warm_frame, cold_frame in zip(warm_frames, cold_frames):
+            for name in warm_frame:
+                assert np.array_equal(warm_frame[name], cold_frame[name], equal_nan=True), name
+        assert (warm_frames[0]["face"] != warm_frames[-3]["face"]).mean() > 0.05  # the walk does change the frame
+
+
+def test_the_z_buffer_winner_is_the_bare_tests_whatever_winners_it_holds_before() -> None:
+    """Any triangles left in the winner buffer (here random ones, coincident pairs of opposite facing among
+    them, and the later of a tie) are drawn first and culled nothing they should not: the winners are the
+    bare test's, ties to the first in this frame's drawing order."""
+    from pipeline.render.raster import ClusteredMesh, Rasterizer
+    from tests.render.tiny_scenes import look_at
+
+    rng = np.random.default_rng(5)
+    centres = rng.uniform([-1.0, -0.8, 1.0], [1.0, 0.8, 1.6], (3000, 1, 3))
+    corners = centres + rng.normal(0.0, 0.03, (3000, 3, 3))
+    corners = np.concatenate([corners, corners[-300:, ::-1]])  # coincident, facing the other way
+    vertices, faces = corners.reshape(-1, 3), np.arange(len(corners) * 3).reshape(-1, 3)
+    camera = Camera(64, 48, 40.0, 40.0, 31.7, 23.2)
+    pose = look_at(np.array([0.05, -0.03, -0.2]), np.array([0.0, 0.0, 1.3]))
+    _, expected = _bare_test_winners(vertices, faces, camera, pose)
+    mesh = ClusteredMesh(vertices, faces)
+    twin = np.argsort(mesh.face_ids)  # reordered index of each mesh triangle
+    later_of_ties = twin[np.arange(len(corners) - 300, len(corners))]
+    for history in (rng.integers(-1, len(corners), (48, 64)), np.resize(later_of_ties, (48, 64)),
+                    np.where(expected >= 0, twin[len(corners) - 1 - mesh.face_ids[np.maximum(expected, 0)]], -1)):
+        rasterizer = Rasterizer(mesh, *camera.pixel_axes(), camera.fx, camera.fy)
+        rasterizer.winner[:] = history
+        rasterizer.visible_clusters(pose)
+        for band in (slice(0, 20), slice(20, 48)):
+            rasterizer.draw_band(band, pose)
+        assert np.array_equal(rasterizer.winner, expected)
+
+
+def test_facing_away_triangles_seen_from_behind_win_in_a_walk() -> None:
+    """The open mesh of `test_facing_away_triangles_win_where_nothing_nearer_covers_them` (sheets facing away
+    seen through a hole in a wall and in front of it), drawn along a walk by one rasterizer, so each frame
+    starts from the last one's winners, facing-away ones among them: every frame's winners are the bare test's."""
+    from pipeline.render.raster import ClusteredMesh, Rasterizer
+
+    wall = _sheet((-1.2, -1.2), (1.2, 1.2), 1.5, 12, facing=True, hole=(-0.45, 0.45))
+    behind = _sheet((-3.0, -3.0), (3.0, 3.0), 3.0, 10, facing=False)
+    corners = np.concatenate([wall, behind, _sheet((-1.0, -0.9), (-0.5, 0.9), 1.0, 4, facing=False)])
+    vertices, faces = corners.reshape(-1, 3), np.arange(len(corners) * 3).reshape(-1, 3)
+    camera = Camera(48, 36, 30.0, 30.0, 23.5, 17.5)
+    mesh = ClusteredMesh(vertices, faces)
+    rasterizer = Rasterizer(mesh, *camera.pixel_axes(), camera.fx, camera.fy)
+    for step in range(5):
+        pose = np.eye(4)
+        pose[:3, 3] = [-0.04 * step, 0.02 * step, 0.04 * step]
+        _, expected = _bare_test_winners(vertices, faces, camera, pose)
+        rasterizer.visible_clusters(pose)
+        rasterizer.draw_band(slice(0, camera.height), pose)
+        assert np.array_equal(rasterizer.winner, expected), step
+        won = mesh.face_ids[expected[expected >= 0]]
+        assert ((won >= len(wall)) & (won < len(wall) + len(behind))).sum() > 30  # through the hole
+        assert (won >= len(wall) + len(behind)).sum() > 30  # nearer than the wall
