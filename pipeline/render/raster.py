@@ -444,12 +444,10 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
         right = min(right, int(np.floor((max(xa, xb, xc) - pixel_x[0]) * fx + SPAN_MARGIN)))
         if top > bottom or left > right:
             return
-        if not cull:
-            pass
-        elif (bottom - top + 1) * (right - left + 1) <= SMALL_BOX:
+        if cull and (bottom - top + 1) * (right - left + 1) <= SMALL_BOX:
             if _pixels_occluded(top, bottom, left, right, min(a[2], b[2], c[2]), inverse_depth):
                 return
-        elif _occluded((top, bottom, left, right), min(a[2], b[2], c[2]), row_start, row_stop, inverse_depth, tiles, dirty):
+        elif cull and _occluded((top, bottom, left, right), min(a[2], b[2], c[2]), row_start, row_stop, inverse_depth, tiles, dirty):
             return
     sign = 1.0 if det > 0.0 else -1.0
     e0, e1, e2 = _edge(a, b, sign), _edge(b, c, sign), _edge(c, a, sign)
