@@ -17,7 +17,7 @@ from pipeline.config import ConfigError, Job, load_job
 from pipeline.io.dataset_stats import (COMPARISON_COLUMNS, SPLIT_ROWS, DatasetStats, StatsError, dataset_stats,
                                        write_stats_picture)
 from pipeline.io.query import (DEFAULT_MEMORY_LIMIT, DEFAULT_TIMEOUT_S, QueryError, QueryStopped, query, result_table,
-                               signals_interrupt_duckdb, write_result)
+                               write_result)
 from pipeline.runtime.executor import StageOrderError, StagePlan
 from pipeline.store.failures import RunStoppedError, stop_on_storage_failure
 from pipeline.store.lock import RunLockedError
@@ -270,17 +270,16 @@ def query_command(
     if out is not None:
         check_out_file(out)  # refused before the query runs
     try:
-        with signals_interrupt_duckdb():  # DuckDB runs on this thread too: the views' set-up, the result's conversion
-            relation = query(RunFolder.open(run_dir), sql, timeout, memory_limit)
-            if fmt is OutputFormat.table:
-                result = result_table(relation)
-                table = Table(*result.column_names)
-                for row in zip(*(column.to_pylist() for column in result.columns)):
-                    table.add_row(*[_cell(v) for v in row])
-                print_table(table)
-                return
-            with out_file(out) if out is not None else nullcontext(None) as target:  # a new file renamed over --out
-                text = write_result(relation, fmt.value, target)
+        relation = query(RunFolder.open(run_dir), sql, timeout, memory_limit)
+        if fmt is OutputFormat.table:
+            result = result_table(relation)
+            table = Table(*result.column_names)
+            for row in zip(*(column.to_pylist() for column in result.columns)):
+                table.add_row(*[_cell(v) for v in row])
+            print_table(table)
+            return
+        with out_file(out) if out is not None else nullcontext(None) as target:  # a new file renamed over --out
+            text = write_result(relation, fmt.value, target)
     except QueryStopped as error:  # its time or memory bound: the query was fine, exit 1
         fail(str(error), EXIT_FAILED)
     except USAGE_ERRORS as error:

@@ -78,7 +78,11 @@ def _ignore_signals_at_the_end() -> None:
 def commands_handle_signals(on_sigterm: Callable[[], None]) -> Iterator[None]:
     """While the block runs, Ctrl-C raises KeyboardInterrupt and `on_sigterm()` installs the SIGTERM
     handler, so the command unwinds; the handlers from before (this module's, in the `mvpd` process) are
-    restored afterwards."""
+    restored afterwards.
+
+    DuckDB stops a statement that a signal interrupts on this thread (a query's views, its result's conversion,
+    the stats) with RuntimeError('Query interrupted') and drops the handler's exception: it is raised again as
+    KeyboardInterrupt, which the CLI ends in its one line (exit 130, or 143 after SIGTERM), not a stack dump."""
     if not _in_main_thread():
         yield
         return
@@ -86,7 +90,12 @@ def commands_handle_signals(on_sigterm: Callable[[], None]) -> Iterator[None]:
     try:
         signal.signal(signal.SIGINT, signal.default_int_handler)
         on_sigterm()
-        yield
+        try:
+            yield
+        except RuntimeError as error:
+            if str(error) != "Query interrupted":
+                raise
+            raise KeyboardInterrupt from error
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler if handler is not None else signal.SIG_DFL)

@@ -27,8 +27,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from pathlib import Path
 
 import duckdb
@@ -208,21 +207,6 @@ def query(run: RunFolder, sql: str, timeout_s: float | None = DEFAULT_TIMEOUT_S,
         raise error  # type: ignore[misc]
     known = ", ".join(run.datasets()) or "none yet"
     raise QueryError(f"{_first_line(error)} (tables in {run.location}: {known})")
-
-
-@contextmanager
-def signals_interrupt_duckdb() -> Iterator[None]:
-    """Ctrl-C (or the CLI's SIGTERM) while DuckDB runs on this thread raises KeyboardInterrupt, as anywhere else.
-
-    DuckDB stops such a statement with RuntimeError('Query interrupted') and drops the exception the signal's
-    handler raised, so without this a signal during the views' set-up or the result's conversion ended `mvpd
-    query` with a stack dump instead of its one line (exit 130 / 143)."""
-    try:
-        yield
-    except RuntimeError as error:
-        if str(error) != "Query interrupted":
-            raise
-        raise KeyboardInterrupt from error
 
 
 def _first_line(error: Exception) -> str:

@@ -18,7 +18,7 @@ import duckdb
 import pytest
 
 from pipeline.config import ConfigError, load_embodiment, load_job
-from pipeline.io.query import signals_interrupt_duckdb
+from pipeline.cli.signals import commands_handle_signals
 from pipeline.store.run_folder import RunFolder
 from tests.cli.test_confinement import invoke, make_run
 from tests.cli.test_trust import one_line
@@ -228,13 +228,13 @@ def test_a_driver_that_lost_its_lease_exits_1_as_the_readme_says(tmp_path, monke
 
 def test_a_signal_while_duckdb_runs_on_the_main_thread_is_a_keyboard_interrupt():
     """DuckDB ends a statement that Ctrl-C interrupts on the main thread with RuntimeError('Query interrupted') (CI
-    caught `mvpd query` printing that stack dump when the signal came as the result was converted); the query
-    command's guard raises KeyboardInterrupt instead, which the CLI ends in one line (exit 130)."""
+    caught `mvpd query` printing that stack dump when the signal came as the result was converted); while a command
+    runs, the CLI's signal handling raises KeyboardInterrupt instead, which it ends in one line (exit 130)."""
     connection = duckdb.connect()
     timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT))
     timer.start()
     try:
-        with pytest.raises(KeyboardInterrupt), signals_interrupt_duckdb():
+        with pytest.raises(KeyboardInterrupt), commands_handle_signals(lambda: None):
             connection.execute("select count(*) from range(3000000000) where range % 7 = 3").fetchall()  # ~15 s whole
     finally:
         timer.cancel()
