@@ -147,7 +147,8 @@ class IndirectGather:
         grid = GatherGrid(hits.depth[pixels], hits.normal[pixels], hits.direction[pixels], origin, 1)
         grid.depth[~cells.any(axis=2)] = np.inf
         combined = self._gather_filtered(grid, lights, starts, camera_to_world)
-        out[orphans] = np.repeat(np.repeat(combined, cell, axis=0), cell, axis=1)[:rows, :columns][orphans]
+        orphan_rows, orphan_columns = np.nonzero(orphans)
+        out[orphan_rows, orphan_columns] = combined[orphan_rows // cell, orphan_columns // cell]
 
     def _near_field(self, points: np.ndarray, normals: np.ndarray, eyes: np.ndarray, depth: np.ndarray,
                     local: np.ndarray, camera_to_world: np.ndarray, gathered: np.ndarray) -> None:
