@@ -117,11 +117,28 @@ def test_russian_roulette_of_shadow_rays_casts_fewer_rays_and_keeps_the_mean(mon
     cast = []
     counted = lambda cells, *rest: (cast.append(len(cells)), accumulate(cells, *rest))  # noqa: E731
     monkeypatch.setattr(shadow_rays, "_accumulate", counted)
-    with_roulette = gather.irradiance_at(points, normals, pose)[:, 0]
+    with_roulette = gather.irradiance_at(points, normals, pose)
     monkeypatch.setattr(shadow_rays, "ROULETTE_BELOW", 0.0)
-    every_ray = gather.irradiance_at(points, normals, pose)[:, 0]
+    every_ray = gather.irradiance_at(points, normals, pose)
     assert cast[0] < 0.6 * cast[1]
-    assert with_roulette.mean() == pytest.approx(every_ray.mean(), rel=0.01)
+    assert with_roulette[:, 0].mean() == pytest.approx(every_ray[:, 0].mean(), rel=0.01)
+
+
+def test_the_glossy_term_of_the_pairs_the_roulette_keeps_counts_as_their_irradiance_does(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # The glossy term is computed after the roulette has chosen (it does not enter the choice): it must take the
+    # same weight 1 / p as the irradiance of its pair, or its mean drops to ~1/3 (the share of pairs kept).
+    scene, sides = _box(2.0)
+    gather = IndirectGather(SceneRaycaster(scene).mesh, SurfaceColors(scene),
+                            _spot(bounces=2, material="principled", lights=256), seed=0)
+    points, normals = _surface_samples(sides, 3000, np.random.default_rng(1))
+    pose = look_at(np.zeros(3), np.array([0.3, 0.2, 1.0]))
+    with_roulette = gather.irradiance_at(points, normals, pose)
+    monkeypatch.setattr(shadow_rays, "ROULETTE_BELOW", 0.0)
+    every_ray = gather.irradiance_at(points, normals, pose)
+    assert every_ray[:, 3:].mean() > 0.02 * every_ray[:, :3].mean()  # the lobe does reflect some
+    for channel in range(6):
+        assert with_roulette[:, channel].mean() == pytest.approx(every_ray[:, channel].mean(), rel=0.01)
 
 
 def test_same_seed_same_bytes_and_a_still_camera_does_not_flicker() -> None:

@@ -84,6 +84,11 @@ def _shadow_rays(points, point_normals, eyes, point_depth, row_offset, interleav
     origins = np.empty((most, 3), np.float32)
     directions = np.empty((most, 3), np.float32)
     lights = np.empty(most, np.int64)
+    # Per pair until the roulette has chosen: the irradiance in float64 (the glossy term multiplies it before it is
+    # rounded), the distance to the light (`directions` holds the unit direction) and the roulette's weight.
+    received = np.empty((most, 3), np.float64)
+    distances = np.empty(most, np.float32)
+    weights = np.empty(most, np.float32)
     n = 0
     inverse_pi, pi = np.float32(1.0 / math.pi), np.float32(math.pi)
     for i in range(rows):
@@ -113,40 +118,54 @@ def _shadow_rays(points, point_normals, eyes, point_depth, row_offset, interleav
                 geometry = cos_x * cos_j / max(r2, clamp2)
                 wx, wy, wz = incoming[j, 0], incoming[j, 1], incoming[j, 2]
                 cos_in = mx * wx + my * wy + mz * wz
-                lobe, seen = 0.0, 0.0
+                lobe = 0.0
                 if cos_in > 0:
                     widened = widened_alpha(alpha, cos_x)
                     lobe = _glossy(mx, my, mz, wx, wy, wz, -dx, -dy, -dz, cos_in, cos_j, energy, widened, ior)
-                if cos_eye > 0:
-                    seen = pi * _glossy(nx, ny, nz, dx, dy, dz, ex, ey, ez, cos_x, cos_eye, energy, alpha, ior)
                 diffuse = base[_entry(cos_j)] * inverse_pi
                 cells[n] = i * columns + k
                 for c in range(3):
-                    received = (coloured_flux[j, c] * diffuse + flux[j, c] * lobe) * geometry
-                    contributions[n, c] = received
-                    contributions[n, 3 + c] = received * seen
+                    received[n, c] = (coloured_flux[j, c] * diffuse + flux[j, c] * lobe) * geometry
+                    contributions[n, c] = received[n, c]
                 origins[n, 0], origins[n, 1], origins[n, 2] = px, py, pz
-                directions[n, 0], directions[n, 1], directions[n, 2] = dx * r, dy * r, dz * r
+                directions[n, 0], directions[n, 1], directions[n, 2] = dx, dy, dz
+                distances[n] = r
                 lights[n] = j
                 n += 1
             n = _roulette(first, n, (i + row_offset) * columns + k, seed, roulette_below, lights, cells, contributions,
-                          origins, directions)
+                          origins, directions, received, distances, weights)
+            # The glossy term only for the pairs the roulette kept (it does not enter the roulette's choice): x's
+            # lobe is the dearest part of a pair, and about two thirds of the pairs are dropped.
+            for q in range(first, n):
+                dx, dy, dz = directions[q, 0], directions[q, 1], directions[q, 2]
+                seen = 0.0
+                if cos_eye > 0:
+                    cos_x = nx * dx + ny * dy + nz * dz
+                    seen = pi * _glossy(nx, ny, nz, dx, dy, dz, ex, ey, ez, cos_x, cos_eye, energy, alpha, ior)
+                weight = weights[q]
+                for c in range(3):
+                    contributions[q, c] = np.float32(received[q, c]) * weight
+                    contributions[q, 3 + c] = np.float32(received[q, c] * seen) * weight
+                r = distances[q]
+                directions[q, 0], directions[q, 1], directions[q, 2] = dx * r, dy * r, dz * r
     return cells[:n], contributions[:n], origins[:n], directions[:n]
 
 
 @numba.njit(nogil=True, cache=True)
-def _roulette(first, end, cell, seed, roulette_below, lights, cells, contributions, origins,
-              directions):  # pragma: no cover (compiled)
+def _roulette(first, end, cell, seed, roulette_below, lights, cells, contributions, origins, directions, received,
+              distances, weights):  # pragma: no cover (compiled)
     """Russian roulette on the pairs first..end of one gather point: a pair bringing c < roulette_below times the
     point's mean keeps its shadow ray with probability c / (roulette_below mean) and then counts 1 / p times (an
     unbiased estimate); the rest are dropped. The draw hashes (seed, cell, light): a still camera draws alike.
-    Returns the new end of the kept pairs (compacted in place)."""
+    Returns the new end of the kept pairs (compacted in place, each with its weight in `weights`; the caller
+    scales their contributions)."""
     total = np.float32(0.0)
     for q in range(first, end):
         total += contributions[q, 0] + contributions[q, 1] + contributions[q, 2]
     if total <= 0:
         return first  # nothing to bring: no rays
     if roulette_below <= 0:
+        weights[first:end] = 1.0
         return end
     threshold = roulette_below * total / np.float32(end - first)
     kept = first
@@ -158,9 +177,9 @@ def _roulette(first, end, cell, seed, roulette_below, lights, cells, contributio
             if _hash_uniform(seed, cell, lights[q]) >= chance:
                 continue
             weight = np.float32(1.0) / chance
-        cells[kept] = cells[q]
-        for c in range(CHANNELS):
-            contributions[kept, c] = contributions[q, c] * weight
+        cells[kept], distances[kept], weights[kept] = cells[q], distances[q], weight
+        for c in range(3):
+            received[kept, c] = received[q, c]
         for axis in range(3):
             origins[kept, axis], directions[kept, axis] = origins[q, axis], directions[q, axis]
         kept += 1

@@ -23,6 +23,14 @@ def upsample_blocks(combined, points, point_normals, point_depth, depth, directi
     rows, columns = point_depth.shape
     half = np.float32(stride // 2)
     one = np.float32(1.0)
+    # Each column's two nearest grid columns and the weight between them, once per band rather than per pixel.
+    lefts, rights, across = np.empty(width, np.int64), np.empty(width, np.int64), np.empty(width, np.float32)
+    for block_column in range(width):
+        gk = (np.float32(block_column * block) - half) / np.float32(stride)
+        lefts[block_column] = min(max(int(np.floor(gk)), 0), columns - 1)
+        rights[block_column] = min(lefts[block_column] + 1, columns - 1)
+        across[block_column] = min(max(gk - np.float32(lefts[block_column]), np.float32(0.0)), one)
+    out[:] = 0.0  # once for the band, not a slice per pixel
     for local_row in range(height):
         row = (block_start + local_row) * block
         gi = (np.float32(row) - half) / np.float32(stride)
@@ -31,7 +39,6 @@ def upsample_blocks(combined, points, point_normals, point_depth, depth, directi
         fi = min(max(gi - np.float32(i0), np.float32(0.0)), one)
         for block_column in range(width):
             column = block_column * block
-            out[local_row, block_column] = 0.0
             z = depth[row, column]
             if not np.isfinite(z):
                 continue
@@ -42,10 +49,7 @@ def upsample_blocks(combined, points, point_normals, point_depth, depth, directi
             px = origin[0] + z * direction[row, column, 0]
             py = origin[1] + z * direction[row, column, 1]
             pz = origin[2] + z * direction[row, column, 2]
-            gk = (np.float32(column) - half) / np.float32(stride)
-            k0 = min(max(int(np.floor(gk)), 0), columns - 1)
-            k1 = min(k0 + 1, columns - 1)
-            fk = min(max(gk - np.float32(k0), np.float32(0.0)), one)
+            k0, k1, fk = lefts[block_column], rights[block_column], across[block_column]
             w00 = (one - fi) * (one - fk) * similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i0, k0)
             w01 = (one - fi) * fk * similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i0, k1)
             w10 = fi * (one - fk) * similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i1, k0)
