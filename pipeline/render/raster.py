@@ -33,6 +33,10 @@ CLUSTER_SIZE = 64  # triangles per cluster: small boxes cull well, and 16 k clus
 TILE = 8  # pixels per side of the occlusion tiles
 SPAN_MARGIN = 1e-3  # pixels: a row's columns are tested this far beyond its edges' zeros (see _draw_triangle)
 SMALL_BOX = 4  # pixels: a triangle's box of at most this many pixel centres is tested pixel by pixel
+# pixels: a triangle's box of at most this many pixel centres whose tiles are not all behind is tested pixel by pixel
+# (a triangle whose tiles straddle a depth edge is often behind every pixel of its own box: 36 % fewer edge set-ups
+# and 28 % fewer pixel tests on the bench's consecutive poses, while a larger box is rarely behind)
+PIXEL_BOX = 1024
 FACING_AWAY_RUN = 4  # facing-away triangles of a cluster, consecutive, whose joint box is tested before them
 RUN = 4  # consecutive triangles of a cluster whose joint box is tested before any of them is set up
 _BEHIND = 1e-6  # metres: a cluster corner nearer than this to the camera plane makes the cluster cover the image
@@ -420,7 +424,7 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
     """Z-buffer one triangle (corners a, b, c relative to the camera, camera frame; det = det(a, b, c)) into
     the band's pixels: it wins a pixel it is nearer at, or as near as a triangle it comes before in the drawing
     order. With `cull`, it is first tested against the occlusion tiles (when it covers more than a few pixel
-    centres) or against its pixels.
+    centres), then against the pixels of its box (when the tiles do not cull it and the box is under PIXEL_BOX).
 
     The edge planes are scaled by the sign of det(a, b, c), so that inside means all three edge values >= 0.
     Negation is exact in floating point (x * -1 and -(x y + z) = (-x) y + (-z) bit for bit, but for the sign
@@ -444,10 +448,14 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
         right = min(right, int(np.floor((max(xa, xb, xc) - pixel_x[0]) * fx + SPAN_MARGIN)))
         if top > bottom or left > right:
             return
-        if cull and (bottom - top + 1) * (right - left + 1) <= SMALL_BOX:
+        box = (bottom - top + 1) * (right - left + 1)
+        if cull and box <= SMALL_BOX:
             if _pixels_occluded(top, bottom, left, right, min(a[2], b[2], c[2]), inverse_depth):
                 return
-        elif cull and _occluded((top, bottom, left, right), min(a[2], b[2], c[2]), row_start, row_stop, inverse_depth, tiles, dirty):
+        elif cull and (_occluded((top, bottom, left, right), min(a[2], b[2], c[2]), row_start, row_stop, inverse_depth,
+                                 tiles, dirty)
+                       or box <= PIXEL_BOX and _pixels_occluded(top, bottom, left, right, min(a[2], b[2], c[2]),
+                                                                inverse_depth)):
             return
     sign = 1.0 if det > 0.0 else -1.0
     e0, e1, e2 = _edge(a, b, sign), _edge(b, c, sign), _edge(c, a, sign)

@@ -364,3 +364,35 @@ def test_facing_away_triangles_seen_from_behind_win_in_a_walk() -> None:
         won = mesh.face_ids[expected[expected >= 0]]
         assert ((won >= len(wall)) & (won < len(wall) + len(behind))).sum() > 30  # through the hole
         assert (won >= len(wall) + len(behind)).sum() > 30  # nearer than the wall
+
+
+def test_triangles_just_behind_a_depth_edge_are_culled_by_their_pixels_only_when_behind_them_all() -> None:
+    """Sheets of triangles a few tiles across cross the edge of a wall that ends inside an occlusion tile: just
+    behind it (5e-5 of the depth), in its plane (ties) and just in front (5e-6). Their tiles straddle the edge,
+    so they reach the test of the pixels of their box (PIXEL_BOX), which may cull them only where every pixel
+    holds something nearer. Drawn again from the same pose (the wall among the first triangles drawn) and along
+    a walk, every frame's winners are the bare test's."""
+    from pipeline.render.raster import PIXEL_BOX, SMALL_BOX, ClusteredMesh, Rasterizer
+
+    wall = _sheet((-1.2, -1.2), (0.1, 1.2), 1.5, 6, facing=True)  # its edge: column ~37 of tile 4 (32-39)
+    sheets = [_sheet((-0.5, -0.4), (0.5, 0.4), 1.5 * (1 + 5e-5), 6, facing=True),
+              _sheet((-0.5, -0.4), (0.5, 0.4), 1.5, 6, facing=True),
+              _sheet((-0.5, -0.4), (0.2, 0.0), 1.5 * (1 - 5e-6), 6, facing=True)]  # the lower half, to x = 0.2
+    corners = np.concatenate([wall, *sheets, _sheet((-3.0, -3.0), (3.0, 3.0), 3.0, 4, facing=False)])  # (seen from behind)
+    vertices, faces = corners.reshape(-1, 3), np.arange(len(corners) * 3).reshape(-1, 3)
+    camera = Camera(64, 48, 80.0, 80.0, 31.5, 23.5)
+    box = (0.8 / 6 / 1.5 * 80) ** 2  # a sheet triangle's box, pixels (about)
+    assert SMALL_BOX < box < PIXEL_BOX
+    mesh = ClusteredMesh(vertices, faces)
+    rasterizer = Rasterizer(mesh, *camera.pixel_axes(), camera.fx, camera.fy)
+    for step in (0, 0, 1, 2, 3):
+        pose = np.eye(4)
+        pose[:3, 3] = [0.01 * step, -0.005 * step, 0.0]
+        _, expected = _bare_test_winners(vertices, faces, camera, pose)
+        rasterizer.visible_clusters(pose)
+        rasterizer.draw_band(slice(0, camera.height), pose)
+        assert np.array_equal(rasterizer.winner, expected), step
+        won = mesh.face_ids[expected[expected >= 0]]
+        in_front = len(wall) + 2 * len(sheets[0])
+        assert ((won >= in_front) & (won < in_front + len(sheets[0]))).sum() > 100  # the sheet just in front
+        assert ((won >= len(wall)) & (won < in_front)).sum() > 200  # the other two, right of the wall's edge
