@@ -42,3 +42,37 @@ def test_the_calibration_job_is_one_house_of_the_one_percent_job(bench_scaling, 
     full = load_job(REPO / "jobs" / "mvpd-1pct.yaml")
     assert job.scenes.procedural.count == 1 and full.scenes.procedural.count > 1
     assert job.model_copy(update={"scenes": full.scenes}) == full  # nothing else differs
+
+
+def test_the_model_and_the_check_are_medians_of_renders_in_turns(bench_scaling, monkeypatch: pytest.MonkeyPatch,
+                                                                 tmp_path: Path) -> None:
+    # Stop 36's three quiet runs, as one calibration of three rounds: one run's model could say 33.7 or 44.4.
+    drift = iter([26.38, 22.08, 21.93, 20.03, 24.87, 21.15])
+    taken = []
+
+    def render(command, log, frames, wait_s, allow_load):
+        taken.append(log.name)
+        return {"cpu_ms_per_frame": next(drift), "quiet": True}
+
+    monkeypatch.setattr(bench_scaling, "measured_render", render)
+    monkeypatch.setattr(bench_scaling.subprocess, "run", lambda *args, **kwargs: None)
+    monkeypatch.setattr(bench_scaling, "RENDER_ONE_HOUSE", tmp_path / "one_house.json")
+    monkeypatch.setattr(bench_scaling, "wait_for_quiet", lambda wait_s, allow_load: 0.5)
+    result = bench_scaling.calibration(tmp_path, 0.0, allow_load=False, repeats=3)
+    assert taken == ["calibration-0.log", "check-0.log", "check-1.log", "calibration-1.log", "calibration-2.log",
+                     "check-2.log"]  # the order swapped each round: both see the same drift
+    projection = result["projection"]
+    assert projection["model_ms_per_frame_per_core"] == 24.87 and projection["check_ms_per_frame_per_core"] == 21.93
+    assert projection["model_renders_ms"]["runs"] == [26.38, 20.03, 24.87]
+    assert projection["render_core_hours"]["model"] == 41.9 and projection["render_core_hours"]["model_range"] == [33.7, 44.4]
+    assert not projection["met"] and not projection["settled"]  # the median says no, and the spread could flip it
+    assert (tmp_path / "one_house.json").exists()
+
+
+def test_a_projection_every_render_agrees_on_is_settled(bench_scaling) -> None:
+    projection = bench_scaling.calibration_projection([21.0, 22.0, 23.0], [22.5, 21.5, 22.0])
+    assert projection["render_core_hours"] == {"model": 37.0, "check": 37.0, "model_range": [35.4, 38.7]}
+    assert projection["met"] and projection["settled"] and projection["within_target_error"]
+    assert projection["model_error"] == 0.0
+    far = bench_scaling.calibration_projection([20.0], [24.0])
+    assert far["model_error"] == 0.2 and not far["within_target_error"]

@@ -13,6 +13,10 @@ from typing import Mapping, Protocol
 import numba
 import numpy as np
 
+# Pixels of a row `_areas_and_boxes` tests at once while following a run (8: 17-29 % faster on the bench frames,
+# whose rows hold ~11 runs of ~57 pixels; 16 gained 18 %, 32 lost).
+RUN_BLOCK = 8
+
 
 def unique_with_inverse(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(sorted distinct ids, index of each pixel's id into them, in `ids`' shape): `np.unique(ids,
@@ -76,7 +80,9 @@ def _areas_and_boxes(dense: np.ndarray, count: int) -> tuple[np.ndarray, np.ndar
     in one pass over the frame (labels absent from it keep an empty box).
 
     By runs of one label along a row (a rendered row holds a few dozen): a pixel costs one comparison, a run
-    one area sum and four box updates (the per-pixel updates took 2.4x the time on the bench frames)."""
+    one area sum and four box updates (the per-pixel updates took 2.4x the time on the bench frames). A run is
+    followed RUN_BLOCK pixels at a time while a whole block holds its label, with one branch per block instead
+    of one per pixel: 17-29 % less time on 48 bench frames (0.52 -> 0.38 ms, 1 thread, in turns with the former loop)."""
     height, width = dense.shape
     areas = np.zeros(count, np.int64)
     boxes = np.empty((count, 4), np.int32)
@@ -88,6 +94,8 @@ def _areas_and_boxes(dense: np.ndarray, count: int) -> tuple[np.ndarray, np.ndar
         while start < width:
             label = dense[row, start]
             end = start + 1
+            while end + RUN_BLOCK <= width and _block_holds(dense, row, end, label):
+                end += RUN_BLOCK
             while end < width and dense[row, end] == label:
                 end += 1
             areas[label] += end - start
@@ -97,3 +105,13 @@ def _areas_and_boxes(dense: np.ndarray, count: int) -> tuple[np.ndarray, np.ndar
             boxes[label, 3] = max(boxes[label, 3], row + 1)
             start = end
     return areas, boxes
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _block_holds(dense: np.ndarray, row: int, start: int, label: int) -> bool:  # pragma: no cover (compiled)
+    """Whether the RUN_BLOCK pixels of a row from `start` on all hold `label` (every one tested, no early exit:
+    the compiler turns the fixed-length loop into a few vector compares)."""
+    same = True
+    for k in range(RUN_BLOCK):
+        same &= dense[row, start + k] == label
+    return same

@@ -104,10 +104,10 @@ class VideoRenderer:
             self._lights = (pose, _light_tracer().submit(self.indirect.virtual_lights, pose))
         hits = self.raycaster.cast(self.camera, camera_to_world)
         sensor = self.embodiment.sensor
-        inside = hits.depth >= sensor.near  # a miss (inf) fails the far test below
-        inside &= hits.depth <= sensor.far
-        # Counting is cheaper than building the mask of clipped hits, which is rarely needed.
-        if np.count_nonzero(inside) != np.count_nonzero(hits.hit):
+        # One compiled pass tells whether any hit is clipped; the masks are built only then (rarely).
+        if _any_clipped(hits.depth, np.float32(sensor.near), np.float32(sensor.far)):
+            inside = hits.depth >= sensor.near  # a miss (inf) fails the far test below
+            inside &= hits.depth <= sensor.far
             clipped = hits.hit & ~inside
             hits.face[clipped] = self.raycaster.miss_index
             hits.depth[clipped] = np.inf
@@ -163,19 +163,36 @@ class VideoRenderer:
 
 
 @numba.njit(nogil=True, cache=True)
+def _any_clipped(depth, near, far):  # pragma: no cover (compiled)
+    """Whether a hit (a finite depth) lies outside [near, far], compared in float32 as NumPy compares the float32
+    depths with the clip range. Every pixel is tested (no early exit, no branch: vectorised): 0.07 ms a 640x480
+    frame, where two whole-array comparisons and two counts took 0.17."""
+    clipped = False
+    for row in range(depth.shape[0]):
+        for column in range(depth.shape[1]):
+            z = depth[row, column]
+            clipped |= ((z < near) | (z > far)) & (z < np.inf) & (z > -np.inf)  # NaN fails every comparison
+    return clipped
+
+
+@numba.njit(nogil=True, cache=True)
 def _depth_and_labels(depth, face, near, far, object_ids, dense_of_face, millimetres, panoptic,
                       dense):  # pragma: no cover (compiled)
-    """One pass over a band's pixels for what three whole-array passes did: `depth_to_millimetres(depth, near,
+    """One pass over a band's rows for what three whole-array passes did: `depth_to_millimetres(depth, near,
     far)` (its float32 arithmetic and comparisons exactly: NumPy compares float32 depths with near and far
     as float32), and each pixel's panoptic id and dense label (`np.take(..., mode="clip")`: a miss, face F,
-    picks the trailing 0 (void) of both tables)."""
+    picks the trailing 0 (void) of both tables). A row's depths, then its labels: the depth loop, without the
+    table look-ups and with its tests combined by `&` (no branches), is vectorised. The whole pass on 24 bench
+    frames, 1 thread, in turns with the single loop, median of 7: 0.67 -> 0.63 ms on a quiet machine, 1.24 -> 0.87
+    with others' work on it (never slower in five runs)."""
     last = len(object_ids) - 1
     for row in range(depth.shape[0]):
         for column in range(depth.shape[1]):
             z = depth[row, column]
             value = np.rint(z * np.float32(1000.0))  # inf and NaN stay non-finite and fail every test below
-            keep = z >= near and z <= far and value > np.float32(0.0) and value <= np.float32(UINT16_MAX_MM)
+            keep = (z >= near) & (z <= far) & (value > np.float32(0.0)) & (value <= np.float32(UINT16_MAX_MM))
             millimetres[row, column] = np.uint16(value) if keep else np.uint16(0)
+        for column in range(depth.shape[1]):
             f = min(max(face[row, column], 0), last)
             panoptic[row, column] = object_ids[f]
             dense[row, column] = dense_of_face[f]

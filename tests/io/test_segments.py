@@ -67,6 +67,32 @@ def test_frames_of_long_runs_match_a_brute_force_count() -> None:
             i: e for i, e in expected.items() if i != 0}
 
 
+
+def test_runs_around_whole_blocks_match_a_brute_force_count() -> None:
+    # Runs are followed RUN_BLOCK pixels at a time: runs one short of, equal to and one past whole blocks, a
+    # block that breaks at its last pixel, and rows whose last block is partial.
+    from pipeline.io.segments import RUN_BLOCK
+
+    pool = np.array([3, 0x1A2B3C, 0xFFFFFF], np.uint32)
+    labels = DenseLabels.from_categories({int(i): 1 for i in pool})
+    lengths = [RUN_BLOCK - 1, RUN_BLOCK, RUN_BLOCK + 1, 2 * RUN_BLOCK, 2 * RUN_BLOCK + 1, 1, 3 * RUN_BLOCK - 1]
+    rng = np.random.default_rng(11)
+    for width in (RUN_BLOCK, 3 * RUN_BLOCK + 5, 64):
+        ids = np.zeros((len(lengths), width), np.uint32)
+        for row, first in enumerate(lengths):
+            column, k = 0, row
+            while column < width:
+                length = first if column == 0 else lengths[k % len(lengths)]
+                ids[row, column:column + length] = pool[k % len(pool)] if k % 4 else 0
+                column, k = column + length, k + 1
+        ids[rng.integers(0, len(lengths)), rng.integers(0, width)] = pool[0]  # a lone pixel inside some block
+        found = frame_segments(ids, labels)
+        expected = _brute_force(ids)
+        assert found.void_pixels == expected.get(0, (0, []))[0]
+        assert {int(i): (int(a), b.tolist()) for i, a, b in zip(found.object_ids, found.areas, found.boxes)} == {
+            i: e for i, e in expected.items() if i != 0}
+
+
 def test_unique_with_inverse_is_numpys_unique():
     from pipeline.io.segments import unique_with_inverse
 

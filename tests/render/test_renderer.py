@@ -147,6 +147,23 @@ def test_depth_and_labels_in_one_pass_equal_the_numpy_passes() -> None:
     assert millimetres[0, 0] == 300 and millimetres[0, 4] == 65534  # float32(near) kept; 65534.5 mm rounds to even
 
 
+
+def test_a_clipped_hit_is_found_as_numpy_comparisons_find_it() -> None:
+    """`trace` builds the clip masks only when `_any_clipped` says a hit lies outside [near, far]: it must say so
+    exactly when NumPy's float32 comparisons of the depths with near and far exclude a finite depth."""
+    from pipeline.render.renderer import _any_clipped
+
+    near, far = 0.3000000119, 65.5355  # float32(near) < near: a depth of float32(0.3) is inside
+    for value in [np.float32(0.3), np.nextafter(np.float32(0.3), np.float32(0)), 0.0, -1.0, 65.5355,
+                  np.nextafter(np.float32(far), np.float32(np.inf)), 1e30, np.inf, -np.inf, np.nan, 2.0]:
+        depth = np.full((3, 17), 2.0, np.float32)
+        depth[1, 16] = value
+        depth[0, :4] = np.inf  # misses
+        inside = (depth >= near) & (depth <= far)
+        expected = bool(np.count_nonzero(inside) != np.count_nonzero(np.isfinite(depth)))
+        assert _any_clipped(depth, np.float32(near), np.float32(far)) == expected, value
+    assert _any_clipped(np.float32([[0.1, 2.0]]), np.float32(near), np.float32(far))
+
 # sha256 of rgb, depth and panoptic bytes of one 96 x 71 frame of the room (pose and seed of the test below),
 # generated with ff1406f: the indirect light's changes must not move a byte of the frames that have none.
 FRAMES_WITHOUT_INDIRECT_LIGHT = {
