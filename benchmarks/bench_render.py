@@ -255,7 +255,7 @@ def run_ours(scene: Scene, poses: np.ndarray, body: Embodiment, exposure: float,
                          background=raycaster.threads > 1 if background is None else background)  # as the stage writes
     mark = started
     for pose in poses:
-        hits = renderer.trace(pose)
+        hits = trace_as_rendered(renderer, pose, getattr(renderer, "needs_surfaces", True))
         mark = lap("cast", mark)
         frame = renderer.buffers(hits, camera_to_world=pose)
         mark = lap("buffers", mark)
@@ -269,6 +269,12 @@ def run_ours(scene: Scene, poses: np.ndarray, body: Embodiment, exposure: float,
     return {"bvh_build_s": build, "total_s": ended[0] - started[0], "cpu_s": ended[1] - started[1],
             **{f"{k}_s": v for k, v in wall.items()}, **{f"{k}_cpu_s": v for k, v in cpu_of.items()},
             "bytes": directory_bytes(store), "peak_rss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}
+
+
+def trace_as_rendered(renderer: VideoRenderer, pose: np.ndarray, surfaces: bool) -> Any:
+    """`renderer.trace`, skipping the normals and directions when `surfaces` is False, as `render` (the stage)
+    does for a frame that reads neither; an older tree's trace (a `--baseline`) takes no such flag."""
+    return renderer.trace(pose) if surfaces or not hasattr(renderer, "needs_surfaces") else renderer.trace(pose, False)
 
 
 def _worker(index: int, poses: np.ndarray, barrier: Any, results: Any) -> None:
@@ -456,10 +462,10 @@ def cast_depth_ids(scene: Scene, poses: np.ndarray, threads: int) -> dict[str, f
             fused(hits.depth, hits.face, np.float32(sensor.near), np.float32(sensor.far), labels.object_ids,
                   labels.dense_of_face, millimetres, panoptic, dense)
 
-    depth_and_ids(renderer.trace(poses[0]))
+    depth_and_ids(trace_as_rendered(renderer, poses[0], False))  # depth and ids read no normals or directions
     started, cpu_started = time.perf_counter(), time.process_time()
     for pose in poses:
-        depth_and_ids(renderer.trace(pose))
+        depth_and_ids(trace_as_rendered(renderer, pose, False))
     return {"wall_s": (time.perf_counter() - started) / len(poses), "cpu_s": (time.process_time() - cpu_started) / len(poses)}
 
 

@@ -124,8 +124,10 @@ class SceneRaycaster:
         """The scene's BVH, for rays other than the camera's (indirect light)."""
         return self._bvh
 
-    def cast(self, camera: Camera, camera_to_world: np.ndarray) -> RayHits:
-        """Trace one frame from `camera_to_world` (4x4, OpenCV camera axes).
+    def cast(self, camera: Camera, camera_to_world: np.ndarray, surfaces: bool = True) -> RayHits:
+        """Trace one frame from `camera_to_world` (4x4, OpenCV camera axes). Without `surfaces`, the z-buffer
+        leaves the normal and direction buffers as they were, for a frame that reads neither (ambient light,
+        ideal sensor; the Embree cast fills them anyway).
 
         The arrays of the result are reused by the next cast of this caster: copy what must outlive it.
         """
@@ -146,7 +148,7 @@ class SceneRaycaster:
                 self._bvh.cast_rows(rows, pixel_x, pixel_y, camera_to_world, self.miss_index, out)
                 return
             rasterizer.draw_band(rows, camera_to_world)
-            rasterizer.resolve_band(rows, camera_to_world, self.miss_index, out)
+            rasterizer.resolve_band(rows, camera_to_world, self.miss_index, out, surfaces)
 
         if rasterizer is not None:
             rasterizer.visible_clusters(camera_to_world)

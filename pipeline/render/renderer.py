@@ -88,21 +88,25 @@ class VideoRenderer:
         self.indirect = (IndirectGather(self.raycaster.mesh, self.colors, light, seed, self.raycaster.threads)
                          if light.kind == "spot" and light.indirect.bounces > 0 else None)
         self._lights: tuple[np.ndarray, Future] | None = None  # (pose, its virtual lights being traced)
+        # Whether `render` needs the hits' normals and directions: the spot's shading and a depth sensor model read
+        # them; ambient light with an ideal sensor reads neither, and the resolve skips ~7 MB of stores a frame.
+        self.needs_surfaces = light.kind == "spot" or self.sensor is not None
         # Frames are shaded in row bands: a band's temporaries stay in the core's cache (4 bands of a 640x480
         # frame: 12 % faster than whole frames), and with several cast threads the bands run in parallel
         # (numpy releases the GIL: 2 threads take ~60 % of the time). A 1-CPU worker runs them inline.
         self._bands = [(rows, Shader(embodiment.illumination, exposure, self.ray_lengths[rows], rows.start))
                        for rows in row_bands(self.camera.height, max(MIN_BANDS, self.raycaster.threads))]
 
-    def trace(self, camera_to_world: np.ndarray) -> RayHits:
-        """Ray cast one pose; hits outside the clip range [near, far] become misses (void, black, 0 mm).
+    def trace(self, camera_to_world: np.ndarray, surfaces: bool = True) -> RayHits:
+        """Ray cast one pose; hits outside the clip range [near, far] become misses (void, black, 0 mm). Without
+        `surfaces` the hits' normals and directions are not filled (`needs_surfaces` says when `render` skips them).
 
         With indirect light and several threads, the spot's virtual lights of the pose (which need no camera
         hit) are traced on a thread of their own meanwhile: their single-threaded numpy would leave a core idle."""
         if self.indirect is not None and self.raycaster.threads > 1:  # (a 1-CPU worker keeps to its core)
             pose = np.array(camera_to_world, np.float64)
             self._lights = (pose, _light_tracer().submit(self.indirect.virtual_lights, pose))
-        hits = self.raycaster.cast(self.camera, camera_to_world)
+        hits = self.raycaster.cast(self.camera, camera_to_world, surfaces)
         sensor = self.embodiment.sensor
         # One compiled pass tells whether any hit is clipped; the masks are built only then (rarely).
         if _any_clipped(hits.depth, np.float32(sensor.near), np.float32(sensor.far)):
@@ -116,7 +120,7 @@ class VideoRenderer:
 
     def render(self, camera_to_world: np.ndarray, rng: np.random.Generator | None = None) -> RenderedFrame:
         """All buffers of one frame. `rng` feeds the sensor model (required unless the sensor is ideal)."""
-        return self.buffers(self.trace(camera_to_world), rng, camera_to_world)
+        return self.buffers(self.trace(camera_to_world, self.needs_surfaces), rng, camera_to_world)
 
     def buffers(self, hits: RayHits, rng: np.random.Generator | None = None,
                 camera_to_world: np.ndarray | None = None) -> RenderedFrame:

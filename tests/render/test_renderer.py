@@ -188,3 +188,27 @@ def test_frames_without_indirect_light_keep_their_bytes(name: str, threads: int)
     frame = renderer.render(look_at(np.array([0.5, 1.0, -1.5]), np.array([0.0, 0.4, 1.5])))
     buffers = b"".join(np.ascontiguousarray(b).tobytes() for b in (frame.rgb, frame.depth, frame.panoptic))
     assert hashlib.sha256(buffers).hexdigest() == FRAMES_WITHOUT_INDIRECT_LIGHT[name]
+
+
+def test_only_frames_that_read_no_surfaces_skip_them_on_a_shared_caster() -> None:
+    """Ambient light with an ideal sensor renders without the hits' normals and directions (the resolve skips
+    them); a spot or a depth-noise model needs them, and a frame rendered after a skipping one on the same
+    caster (the stage shares one per scene) is the frame rendered alone."""
+    from pipeline.config import Illumination
+    from pipeline.render.raycaster import SceneRaycaster
+
+    scene, spot = room_scene(), Illumination(kind="spot", power=20.0)
+    first, second = _poses(2)
+    caster = SceneRaycaster(scene)
+    ambient = VideoRenderer(scene, embodiment(), exposure=2.0, raycaster=caster)
+    noisy = VideoRenderer(scene, embodiment(model="structured_light"), exposure=2.0, raycaster=caster)
+    lit = VideoRenderer(scene, embodiment(light=spot), exposure=2.0, raycaster=caster)
+    assert (ambient.needs_surfaces, noisy.needs_surfaces, lit.needs_surfaces) == (False, True, True)
+    alone = {name: VideoRenderer(scene, embodiment(model=model, light=light), exposure=2.0).render(
+                 second, np.random.default_rng(0))
+             for name, model, light in (("noisy", "structured_light", None), ("lit", "ideal", spot))}
+    for name, renderer in (("noisy", noisy), ("lit", lit)):
+        ambient.render(first)  # leaves the first pose's normals and directions in the caster's buffers
+        frame = renderer.render(second, np.random.default_rng(0))
+        for buffer in ("rgb", "depth", "panoptic"):
+            assert np.array_equal(getattr(frame, buffer), getattr(alone[name], buffer)), (name, buffer)
