@@ -255,7 +255,7 @@ def run_ours(scene: Scene, poses: np.ndarray, body: Embodiment, exposure: float,
                          background=raycaster.threads > 1 if background is None else background)  # as the stage writes
     mark = started
     for pose in poses:
-        hits = trace_as_rendered(renderer, pose, getattr(renderer, "needs_surfaces", True))
+        hits = trace_as_rendered(renderer, pose)
         mark = lap("cast", mark)
         frame = renderer.buffers(hits, camera_to_world=pose)
         mark = lap("buffers", mark)
@@ -271,10 +271,12 @@ def run_ours(scene: Scene, poses: np.ndarray, body: Embodiment, exposure: float,
             "bytes": directory_bytes(store), "peak_rss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}
 
 
-def trace_as_rendered(renderer: VideoRenderer, pose: np.ndarray, surfaces: bool) -> Any:
-    """`renderer.trace`, skipping the normals and directions when `surfaces` is False, as `render` (the stage)
-    does for a frame that reads neither; an older tree's trace (a `--baseline`) takes no such flag."""
-    return renderer.trace(pose) if surfaces or not hasattr(renderer, "needs_surfaces") else renderer.trace(pose, False)
+def trace_as_rendered(renderer: VideoRenderer, pose: np.ndarray, surfaces: bool | None = None) -> Any:
+    """`renderer.trace` filling the normals and directions when `render` (the stage) would (`needs_surfaces`),
+    or as `surfaces` says; an older tree (a `--baseline`) has no such flag and always fills them."""
+    if not hasattr(renderer, "needs_surfaces"):
+        return renderer.trace(pose)
+    return renderer.trace(pose, renderer.needs_surfaces if surfaces is None else surfaces)
 
 
 def _worker(index: int, poses: np.ndarray, barrier: Any, results: Any) -> None:

@@ -374,6 +374,11 @@ def ray_cpu_seconds() -> float:
     return total
 
 
+def release_core_hours(ms_per_frame: float) -> float:
+    """Core-hours of MVPd's frames at `ms_per_frame` of CPU per frame and core."""
+    return MVPD_FRAMES * ms_per_frame / 1000 / 3600
+
+
 def cost_model(render: dict[str, Any]) -> dict[str, Any]:
     """Core-hours, wall time on N nodes and terabytes of the full job from the measured per-frame figures.
 
@@ -382,7 +387,7 @@ def cost_model(render: dict[str, Any]) -> dict[str, Any]:
     """
     earlier = json.loads(RENDER_RESULTS.read_text())
     ms_per_frame = 2 * 1000 / render["fps_2_workers"]["median"]  # per saturated core (a loaded machine)
-    core_hours = MVPD_FRAMES * ms_per_frame / 1000 / 3600
+    core_hours = release_core_hours(ms_per_frame)
     bytes_per_frame = render["bytes_per_frame"]
     return {"videos": MVPD_VIDEOS, "frames": MVPD_FRAMES, "resolution": [640, 480],
             "ms_per_frame_per_core": round(ms_per_frame, 2),
@@ -526,7 +531,7 @@ def calibration_projection(model_ms: list[float], check_ms: list[float]) -> dict
     range their spread gives), checked by the check renders' median (within TARGET_MODEL_ERROR). `met` is the
     median's verdict; `settled` says whether every model render gives the same verdict (the drift cannot flip it)."""
     def core_hours(ms: float) -> float:
-        return round(MVPD_FRAMES * ms / 1000 / 3600, 1)
+        return round(release_core_hours(ms), 1)
 
     model, check = statistics.median(model_ms), statistics.median(check_ms)
     hours = [core_hours(ms) for ms in model_ms]
