@@ -24,7 +24,7 @@ import numpy as np
 
 from pipeline.io.segments import FrameSegments, add_run, empty_boxes, segments_of
 from pipeline.render.lighting import SurfaceColors, _albedo_of_terms, _face_terms
-from pipeline.render.raster import _intersect, _triangle_frame
+from pipeline.render.raster import _column_terms, _intersect, _row_rays, _triangle_frame
 from pipeline.render.sensors import millimetres_of
 
 if TYPE_CHECKING:
@@ -115,20 +115,13 @@ def _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, 
     it wins (~4 pixels on a bench frame)."""
     width = len(pixel_x)
     ox, oy, oz = np.float32(pose[0, 3]), np.float32(pose[1, 3]), np.float32(pose[2, 3])
-    column_terms = np.empty((3, width), np.float64)  # as in raster._resolve: the same bits of every ray
-    for k in range(3):
-        for column in range(width):
-            column_terms[k, column] = pose[k, 0] * pixel_x[column]
+    column_terms = _column_terms(pose, pixel_x)  # as raster._resolve takes them: the same bits of every ray
     rays = np.empty((3, width), np.float32)
     terms = np.zeros((3, 3), np.float32)
     current, frame = -1, _triangle_frame(np.zeros((1, 3, 3), np.float32), 0, ox, oy, oz)
     face, object_id, label, uniform = 0, object_ids[0], dense_of_face[0], True
     for row in range(row_start, row_stop):
-        y = pixel_y[row]
-        for k in range(3):
-            row_term, offset = pose[k, 1] * y, pose[k, 2]
-            for column in range(width):
-                rays[k, column] = np.float32(column_terms[k, column] + row_term + offset)
+        _row_rays(column_terms, pose, pixel_y[row], rays)
         run_label, run_start = -1, 0
         for column in range(width):
             triangle = winner[row, column]

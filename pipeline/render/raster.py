@@ -550,18 +550,11 @@ def _resolve(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_s
     width = len(pixel_x)
     ox, oy, oz = np.float32(pose[0, 3]), np.float32(pose[1, 3]), np.float32(pose[2, 3])
     zero = np.float32(0.0)
-    column_terms = np.empty((3, width), np.float64)  # R[k, 0] x per column
-    for k in range(3):
-        for column in range(width):
-            column_terms[k, column] = pose[k, 0] * pixel_x[column]
+    column_terms = _column_terms(pose, pixel_x)
     rays = np.empty((3, width), np.float32)  # the row's directions, one component per row of the scratch
     current, frame, unit = -1, _triangle_frame(np.zeros((1, 3, 3), np.float32), 0, ox, oy, oz), (zero, zero, zero)
     for row in range(row_start, row_stop):
-        y = pixel_y[row]
-        for k in range(3):
-            row_term, offset = pose[k, 1] * y, pose[k, 2]
-            for column in range(width):
-                rays[k, column] = np.float32(column_terms[k, column] + row_term + offset)
+        _row_rays(column_terms, pose, pixel_y[row], rays)
         for column in range(width):
             dx, dy, dz = rays[0, column], rays[1, column], rays[2, column]
             if surfaces:
@@ -586,6 +579,26 @@ def _resolve(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_s
             barycentric[row, column, 0], barycentric[row, column, 1] = u, v
             if surfaces:
                 normal[row, column, 0], normal[row, column, 1], normal[row, column, 2] = unit
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _column_terms(pose, pixel_x):  # pragma: no cover (compiled)
+    """(3, W) float64 R[k, 0] x per column: the part of every ray `_row_rays` takes once per frame."""
+    column_terms = np.empty((3, len(pixel_x)), np.float64)
+    for k in range(3):
+        for column in range(len(pixel_x)):
+            column_terms[k, column] = pose[k, 0] * pixel_x[column]
+    return column_terms
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _row_rays(column_terms, pose, y, rays):  # pragma: no cover (compiled)
+    """The world-frame directions of a row of pixels (camera-frame y) into `rays` (3, W) float32: R[k, 0] x + R[k, 1]
+    y + R[k, 2] left to right in float64, as the ray cast builds them (a loop the compiler vectorises)."""
+    for k in range(3):
+        row_term, offset = pose[k, 1] * y, pose[k, 2]
+        for column in range(rays.shape[1]):
+            rays[k, column] = np.float32(column_terms[k, column] + row_term + offset)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")

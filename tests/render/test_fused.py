@@ -10,9 +10,11 @@ import pytest
 from pipeline.config import Illumination, Sensor
 from pipeline.io.segments import frame_segments
 from pipeline.render.fused import FramePass
-from pipeline.render.raster import ClusteredMesh, Rasterizer
-from pipeline.render.raycaster import SceneRaycaster
-from pipeline.render.renderer import VideoRenderer, new_frame
+from pipeline.render.lighting import SurfaceColors
+from pipeline.render.raycaster import RayHits, SceneRaycaster
+from pipeline.render.renderer import SceneLabels, VideoRenderer, new_frame
+from pipeline.render.sensors import depth_to_millimetres
+from tests.render.test_resolve import CAMERA, resolved
 from tests.render.tiny_scenes import embodiment, look_at, room_scene
 
 # Inside the room, and far outside it looking at it (the room and the void around it: hits and misses).
@@ -84,21 +86,18 @@ def test_depth_and_ids_alone_are_the_general_path_s() -> None:
 
 
 def test_the_resolve_hands_its_band_to_a_frame_pass_and_leaves_the_hits_alone() -> None:
-    scene = _shaded_room()
-    renderer = VideoRenderer(scene, _body(), exposure=1.0)
-    camera, pose = renderer.camera, POSES[0]
-    rasterizer = Rasterizer(ClusteredMesh(scene.vertices, scene.faces), *camera.pixel_axes(), camera.fx, camera.fy)
-    rasterizer.visible_clusters(pose)
-    rows = slice(0, camera.height)
-    rasterizer.draw_band(rows, pose)
-    shape = (camera.height, camera.width)
-    out = (np.full(shape, -1.0, np.float32), np.full(shape, -1, np.intp), np.full((*shape, 2), -1.0, np.float32),
-           np.full((*shape, 3), 7.0, np.float32), np.full((*shape, 3), 7.0, np.float32))
-    frame = new_frame(*shape, dense=False)
-    into = FramePass(frame, renderer.labels, renderer.colors, 0.01, 1000.0)
-    rasterizer.resolve_band(rows, pose, len(scene.faces), out, into)
-    assert all((buffer == value).all() for buffer, value in zip(out, (-1.0, -1, -1.0, 7.0, 7.0)))
-    assert np.array_equal(frame.rgb, renderer.render(pose).rgb)
+    """Given a FramePass, `Rasterizer.resolve_band` fills its frame (the bytes the hits it would have written give)
+    and leaves the hit buffers as they were."""
+    scene, pose = _shaded_room(), POSES[1]
+    labels, colors = SceneLabels(scene), SurfaceColors(scene)
+    frame = new_frame(CAMERA.height, CAMERA.width, dense=False)
+    untouched = resolved(FramePass(frame, labels, colors, 0.01, 1000.0), pose, scene)
+    assert all((buffer == value).all() for buffer, value in zip(untouched, (-1.0, -1, -1.0, 7.0, 7.0)))
+    depth, face, barycentric, normal, direction = resolved(True, pose, scene)
+    hits = RayHits(depth, face, barycentric, normal, direction, np.isfinite(depth))
+    assert np.array_equal(frame.depth, depth_to_millimetres(depth, 0.01, 1000.0))
+    assert np.array_equal(frame.panoptic, labels.object_ids[face]) and np.array_equal(frame.rgb, colors.albedo(hits))
+    assert (frame.depth == 0).any() and frame.depth.any()
 
 
 def test_only_ambient_frames_with_an_ideal_sensor_on_vertex_colours_and_a_z_buffer_are_fused() -> None:
