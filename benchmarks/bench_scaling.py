@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -65,8 +66,6 @@ from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult  # noqa:
 
 RESULTS = REPO / "benchmarks" / "results" / "scaling.json"
 RENDER_RESULTS = REPO / "benchmarks" / "results" / "render.json"
-# bench_render.py --vs-mitsuba --detail 0.1 --baseline <b5d67c7 worktree>: this code against b5d67c7, interleaved.
-RENDER_VS_BASELINE = REPO / "benchmarks" / "results" / "render_vs_mitsuba_detail0.1.json"
 # One house of jobs/mvpd-1pct.yaml (count: 1; 18 videos, 8,226 frames, ambient) rendered by `mvpd submit --stages
 # render --executor ray` (bench_full_job.py --job ... --only shard plan render) at b5d67c7 and with this code,
 # as quiet as the shared machine got: CPU seconds of the stage's process tree per frame, with the load.
@@ -480,8 +479,8 @@ def calibration(workdir: Path, wait_s: float, allow_load: bool, repeats: int = 3
     (stop 36), so there are `repeats` model renders and as many checks, taken in turns with the order swapped each
     round (model, check; check, model; ...) so that both see the same machine; the model is the median of its
     renders, the check the median of its own (`calibration_projection`). Projection: MVPd's 6.06 M frames at the
-    model's rate, with the range its renders give. Also recorded: the frame's own CPU in bench_render's
-    interleaved run on a house of that detail (RENDER_VS_BASELINE), so the stage's share on top of it (Ray,
+    model's rate, with the range its renders give. Also recorded: the frames' own CPU as a worker renders them,
+    measured in the same run on the same house (`frame_cpu_ms`), so the stage's share on top of it (Ray,
     Parquet, commits) is in view. Writes RENDER_ONE_HOUSE."""
     from benchmarks.bench_full_job import mvpd_command
 
@@ -503,15 +502,12 @@ def calibration(workdir: Path, wait_s: float, allow_load: bool, repeats: int = 3
             render = measured_render(rerun, workdir / f"{name}-{round_index}.log", frames, wait_s, allow_load)
             renders[name].append({**render, "round": round_index})
             print(name, json.dumps(render), flush=True)
-    bench = json.loads(RENDER_VS_BASELINE.read_text()) if RENDER_VS_BASELINE.exists() else None
-    bench_ms = bench["per_frame"]["ours"]["ambient"]["cpu"]["median_ms"] if bench else None
+    frame_ms = frame_cpu_ms(run_dir, workdir / "frames.zarr")
     projection = calibration_projection([r["cpu_ms_per_frame"] for r in renders["calibration"]],
                                         [r["cpu_ms_per_frame"] for r in renders["check"]])
     quiet = all(render["quiet"] for runs in renders.values() for render in runs)
-    projection.update({"quiet": quiet, "bench_frame_cpu_ms": bench_ms,
-                       "bench_source": RENDER_VS_BASELINE.name if bench else None,
-                       "stage_over_bench_frame": round(projection["model_ms_per_frame_per_core"] / bench_ms, 3)
-                       if bench_ms else None})
+    projection.update({"quiet": quiet, "frame_cpu_ms": frame_ms,
+                       "stage_over_frame": round(projection["model_ms_per_frame_per_core"] / frame_ms, 3)})
     if not quiet:
         projection["flag"] = (f"measured under load (>= {QUIET_LOAD} at a render's start, or other processes using "
                               f">= {QUIET_OTHERS_CORES} cores during it): CPU times are inflated; rerun on a quiet machine")
@@ -524,6 +520,27 @@ def calibration(workdir: Path, wait_s: float, allow_load: bool, repeats: int = 3
               "renders": renders, "projection": projection}
     RENDER_ONE_HOUSE.write_text(json.dumps(result, indent=1) + "\n")
     return result
+
+
+def frame_cpu_ms(run_dir: Path, store: Path) -> float:
+    """CPU ms per frame of the frames alone, rendered as the render stage's workers render them (1 thread, shard
+    writes inline; cast, buffers, segment rows, Zarr: bench_render.run_ours) from the first video of the run's
+    plan, into `store` (removed after): the model's per-frame cost less the stage's own (Ray, Parquet, commits)."""
+    from benchmarks.bench_render import run_ours
+    from pipeline.render.lighting import job_exposure
+    from pipeline.render.stage import RgbdRenderer, read_poses
+
+    run = RunFolder.open(run_dir)
+    job = run.job()
+    trajectory = run.read("trajectories").to_pylist()[0]
+    poses = read_poses(run, trajectory)
+    scene = RgbdRenderer(job).load_scene(run, trajectory["scene_id"])
+    try:
+        timed = run_ours(scene, poses, job.embodiment(trajectory["embodiment"]), job_exposure(job), store, threads=1,
+                         background=False)
+    finally:
+        shutil.rmtree(store, ignore_errors=True)
+    return round(1000 * timed["cpu_s"] / len(poses), 2)
 
 
 def calibration_projection(model_ms: list[float], check_ms: list[float]) -> dict[str, Any]:

@@ -58,6 +58,7 @@ def test_the_model_and_the_check_are_medians_of_renders_in_turns(bench_scaling, 
     monkeypatch.setattr(bench_scaling.subprocess, "run", lambda *args, **kwargs: None)
     monkeypatch.setattr(bench_scaling, "RENDER_ONE_HOUSE", tmp_path / "one_house.json")
     monkeypatch.setattr(bench_scaling, "wait_for_quiet", lambda wait_s, allow_load: 0.5)
+    monkeypatch.setattr(bench_scaling, "frame_cpu_ms", lambda run_dir, store: 16.58)
     result = bench_scaling.calibration(tmp_path, 0.0, allow_load=False, repeats=3)
     assert taken == ["calibration-0.log", "check-0.log", "check-1.log", "calibration-1.log", "calibration-2.log",
                      "check-2.log"]  # the order swapped each round: both see the same drift
@@ -66,6 +67,8 @@ def test_the_model_and_the_check_are_medians_of_renders_in_turns(bench_scaling, 
     assert projection["model_renders_ms"]["runs"] == [26.38, 20.03, 24.87]
     assert projection["render_core_hours"]["model"] == 41.9 and projection["render_core_hours"]["model_range"] == [33.7, 44.4]
     assert not projection["met"] and not projection["settled"]  # the median says no, and the spread could flip it
+    # The stage's share on top of the frames' own CPU, both measured in this run (not an older bench file).
+    assert projection["frame_cpu_ms"] == 16.58 and projection["stage_over_frame"] == 1.5  # 24.87 / 16.58
     assert (tmp_path / "one_house.json").exists()
 
 

@@ -68,10 +68,36 @@ def frame_segments(panoptic: np.ndarray, labels: SegmentLabels, dense: np.ndarra
     """
     if dense is None:
         dense = np.searchsorted(labels.dense_ids, panoptic).astype(np.int32)
-    areas, boxes = _areas_and_boxes(dense, len(labels.dense_ids))
+    return segments_of(*_areas_and_boxes(dense, len(labels.dense_ids)), labels)
+
+
+def segments_of(areas: np.ndarray, boxes: np.ndarray, labels: SegmentLabels) -> FrameSegments:
+    """The statistics of the objects with pixels, from every dense label's area (count,) and box (count, 4)
+    (as `_areas_and_boxes` or `empty_boxes` and `add_run` give them)."""
     visible = np.flatnonzero(areas[1:]) + 1
     return FrameSegments(labels.dense_ids[visible], labels.dense_categories[visible], areas[visible],
                          boxes[visible], int(areas[0]))
+
+
+@numba.njit(nogil=True, cache=True)
+def empty_boxes(count: int, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
+    """Areas (count,) int64 and boxes (count, 4) int32 of labels not seen yet in a height x width frame: 0 pixels
+    and the empty box (width, height, 0, 0) that `add_run` widens."""
+    boxes = np.empty((count, 4), np.int32)
+    boxes[:, 0] = width
+    boxes[:, 1] = height
+    boxes[:, 2:] = 0
+    return np.zeros(count, np.int64), boxes
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def add_run(areas, boxes, label, row, start, end):  # pragma: no cover (compiled)
+    """Count the run of `label` over columns start..end - 1 of `row` into its area and box."""
+    areas[label] += end - start
+    boxes[label, 0] = min(boxes[label, 0], start)
+    boxes[label, 1] = min(boxes[label, 1], row)
+    boxes[label, 2] = max(boxes[label, 2], end)
+    boxes[label, 3] = max(boxes[label, 3], row + 1)
 
 
 @numba.njit(nogil=True, cache=True)
@@ -84,11 +110,7 @@ def _areas_and_boxes(dense: np.ndarray, count: int) -> tuple[np.ndarray, np.ndar
     followed RUN_BLOCK pixels at a time while a whole block holds its label, with one branch per block instead
     of one per pixel: 17-29 % less time on 48 bench frames (0.52 -> 0.38 ms, 1 thread, in turns with the former loop)."""
     height, width = dense.shape
-    areas = np.zeros(count, np.int64)
-    boxes = np.empty((count, 4), np.int32)
-    boxes[:, 0] = width
-    boxes[:, 1] = height
-    boxes[:, 2:] = 0
+    areas, boxes = empty_boxes(count, height, width)
     for row in range(height):
         start = 0
         while start < width:
@@ -98,11 +120,7 @@ def _areas_and_boxes(dense: np.ndarray, count: int) -> tuple[np.ndarray, np.ndar
                 end += RUN_BLOCK
             while end < width and dense[row, end] == label:
                 end += 1
-            areas[label] += end - start
-            boxes[label, 0] = min(boxes[label, 0], start)
-            boxes[label, 1] = min(boxes[label, 1], row)
-            boxes[label, 2] = max(boxes[label, 2], end)
-            boxes[label, 3] = max(boxes[label, 3], row + 1)
+            add_run(areas, boxes, label, row, start, end)
             start = end
     return areas, boxes
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
+import numba
 import numpy as np
 
 from pipeline.render.raycaster import RayHits
@@ -82,3 +83,13 @@ def depth_to_millimetres(depth_m: np.ndarray, near: float, far: float) -> np.nda
     out = np.zeros(depth_m.shape, np.uint16)
     np.copyto(out, millimetres, casting="unsafe", where=keep)
     return out
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def millimetres_of(z, near, far):  # pragma: no cover (compiled)
+    """One float32 depth as `depth_to_millimetres` stores it, with its float32 arithmetic and comparisons
+    exactly (NumPy compares float32 depths with near and far as float32: pass them as float32). The tests are
+    combined by `&` (no branches), so a loop of them is vectorised."""
+    value = np.rint(z * np.float32(1000.0))  # inf and NaN stay non-finite and fail every test below
+    keep = (z >= near) & (z <= far) & (value > np.float32(0.0)) & (value <= np.float32(UINT16_MAX_MM))
+    return np.uint16(value) if keep else np.uint16(0)

@@ -16,7 +16,6 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline.config import Embodiment, Job
-from pipeline.io.segments import frame_segments
 from pipeline.io.tables import dataset_parts, spec, to_table
 from pipeline.io.zarr_video import VideoWriter
 from pipeline.plan.poses import pose_matrices
@@ -182,7 +181,7 @@ def render_video(renderer: VideoRenderer, poses: np.ndarray, store: "Path", traj
                     raise ValueError("a noisy sensor model needs `context` or `rng_of_frame` to seed its noise")
                 rng = context.rng("sensor", t) if context is not None else rng_of_frame(t)  # type: ignore[misc]
             frame = renderer.render(pose, rng)
-            found = frame_segments(frame.panoptic, renderer.labels, frame.dense)
+            found = frame.segment_statistics(renderer.labels)
             writer.append(**_buffers(frame, noisy))
             frame_stats.append({**key, "frame": t, "render_seconds": time.perf_counter() - started,
                                 "void_fraction": found.void_pixels / frame.panoptic.size,

@@ -1,0 +1,114 @@
+"""Frames resolved straight into their buffers (fused.FramePass) against the general path: the same bytes."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pipeline.config import Illumination, Sensor
+from pipeline.io.segments import frame_segments
+from pipeline.render.fused import FramePass
+from pipeline.render.lighting import SurfaceColors
+from pipeline.render.raycaster import RayHits, SceneRaycaster
+from pipeline.render.renderer import SceneLabels, VideoRenderer, new_frame
+from pipeline.render.sensors import depth_to_millimetres
+from tests.render.test_resolve import CAMERA, resolved
+from tests.render.tiny_scenes import embodiment, look_at, room_scene
+
+# Inside the room, and far outside it looking at it (the room and the void around it: hits and misses).
+POSES = [look_at(np.array([0.5, 1.0, -1.5]), np.array([0.0, 0.4, 1.5])),
+         look_at(np.array([0.3, 3.0, -12.0]), np.array([0.5, 0.7, 1.0]))]
+
+
+def _shaded_room():
+    """The room with colours that vary over every other quad (interpolated) and are one colour on the others
+    (whose albedo needs no barycentrics): both kinds of face in one frame."""
+    scene = room_scene()
+    colors = np.random.default_rng(7).integers(0, 256, scene.vertex_colors.shape).astype(np.uint8)
+    uniform = (np.arange(len(colors)) // 4) % 2 == 1  # 4 vertices per quad
+    colors[uniform] = scene.vertex_colors[uniform]
+    return dataclasses.replace(scene, vertex_colors=colors)
+
+
+def _body(near: float = 0.01, far: float = 1000.0, **kwargs):
+    body = embodiment(width=96, height=71, **kwargs)
+    return body.model_copy(update={"sensor": Sensor(width=96, height=71, near=near, far=far)})
+
+
+def _general(renderer: VideoRenderer, pose: np.ndarray):
+    """The frame and segment statistics of the general path: hits, then the buffers' passes, then the counts."""
+    frame = renderer.buffers(renderer.trace(pose))
+    return frame, frame_segments(frame.panoptic, renderer.labels, frame.dense)
+
+
+def _same_segments(found, expected) -> bool:
+    return (np.array_equal(found.object_ids, expected.object_ids) and np.array_equal(found.areas, expected.areas)
+            and np.array_equal(found.boxes, expected.boxes) and np.array_equal(found.categories, expected.categories)
+            and found.void_pixels == expected.void_pixels)
+
+
+@pytest.mark.parametrize("threads", [1, 3])
+@pytest.mark.parametrize("scene_kind", ["interpolated", "flat"])
+@pytest.mark.parametrize("clip", [(0.01, 1000.0), (1.2, 3.0)])
+def test_a_fused_frame_is_the_general_path_s_frame(threads: int, scene_kind: str, clip: tuple[float, float]) -> None:
+    """RGB, depth (mm), panoptic ids and segment rows equal the general path's, on faces of one colour and of
+    interpolated colours, with hits the clip range removes (near 1.2 m, far 3 m) and rays that hit nothing,
+    in one band and in three."""
+    scene = _shaded_room() if scene_kind == "interpolated" else room_scene()
+    caster = SceneRaycaster(scene, threads=threads)
+    renderer = VideoRenderer(scene, _body(*clip), exposure=1.0, raycaster=caster)
+    assert renderer.fused and renderer.colors.flat == (scene_kind == "flat")
+    misses = []
+    for pose in POSES:
+        fused = renderer.render(pose)
+        general, segments = _general(renderer, pose)
+        for name in ("rgb", "depth", "panoptic"):
+            assert np.array_equal(getattr(fused, name), getattr(general, name)), name
+        assert fused.dense is None and _same_segments(fused.segment_statistics(renderer.labels), segments)
+        assert (general.rgb[general.depth == 0] == 0).all() and (general.panoptic[general.depth == 0] == 0).all()
+        misses.append(float((general.depth == 0).mean()))
+    assert 0.0 < misses[1] < 1.0 or clip[0] > 0.01  # the void around the room
+    # Inside the room every ray hits; the clip range removes the far wall and the floor under the camera.
+    assert (misses[0] > 0.05) == (clip[0] > 0.01)
+
+
+def test_depth_and_ids_alone_are_the_general_path_s() -> None:
+    """Without colour the pass writes depth, ids and segment rows (and never the rgb buffer)."""
+    scene = _shaded_room()
+    renderer = VideoRenderer(scene, _body(1.2, 3.0), exposure=1.0, raycaster=SceneRaycaster(scene, threads=2))
+    for pose in POSES:
+        bare = renderer.resolve_frame(pose, colour=False)
+        general, segments = _general(renderer, pose)
+        assert np.array_equal(bare.depth, general.depth) and np.array_equal(bare.panoptic, general.panoptic)
+        assert _same_segments(bare.segments, segments)
+
+
+def test_the_resolve_hands_its_band_to_a_frame_pass_and_leaves_the_hits_alone() -> None:
+    """Given a FramePass, `Rasterizer.resolve_band` fills its frame (the bytes the hits it would have written give)
+    and leaves the hit buffers as they were."""
+    scene, pose = _shaded_room(), POSES[1]
+    labels, colors = SceneLabels(scene), SurfaceColors(scene)
+    frame = new_frame(CAMERA.height, CAMERA.width, dense=False)
+    untouched = resolved(FramePass(frame, labels, colors, 0.01, 1000.0), pose, scene)
+    assert all((buffer == value).all() for buffer, value in zip(untouched, (-1.0, -1, -1.0, 7.0, 7.0)))
+    depth, face, barycentric, normal, direction = resolved(True, pose, scene)
+    hits = RayHits(depth, face, barycentric, normal, direction, np.isfinite(depth))
+    assert np.array_equal(frame.depth, depth_to_millimetres(depth, 0.01, 1000.0))
+    assert np.array_equal(frame.panoptic, labels.object_ids[face]) and np.array_equal(frame.rgb, colors.albedo(hits))
+    assert (frame.depth == 0).any() and frame.depth.any()
+
+
+def test_only_ambient_frames_with_an_ideal_sensor_on_vertex_colours_and_a_z_buffer_are_fused() -> None:
+    scene = room_scene()
+    spot = Illumination(kind="spot", power=20.0)
+    assert VideoRenderer(scene, embodiment(), 1.0).fused
+    assert not VideoRenderer(scene, embodiment(light=spot), 1.0).fused
+    assert not VideoRenderer(scene, embodiment(model="structured_light"), 1.0).fused
+    assert not VideoRenderer(scene, embodiment(), 1.0, raycaster=SceneRaycaster(scene, rasterize=False)).fused
+    textured = dataclasses.replace(scene, vertex_colors=None)
+    assert not VideoRenderer(textured, embodiment(), 1.0).fused
+    with pytest.raises(ValueError, match="vertex-coloured"):
+        FramePass(new_frame(2, 2), VideoRenderer(textured, embodiment(), 1.0).labels,
+                  VideoRenderer(textured, embodiment(), 1.0).colors, 0.01, 1.0)
