@@ -36,7 +36,7 @@ _NO_RECORDS, _NO_RGB = np.zeros((1, 16), np.uint8), np.zeros((1, 1, 3), np.uint8
 
 class FramePass:
     """A frame's depth (mm), panoptic ids, segment statistics and, with `colors`, its ambient RGB, written by the
-    resolve of each band of the cast (pass it as `SceneRaycaster.cast`'s `surfaces`; then call `segments`).
+    resolve of each band of the cast (pass it as `SceneRaycaster.cast`'s `into`; then call `segments`).
 
     Args:
         frame: the buffers to fill (its `rgb` is left alone without `colors`, its `dense` labels always: the

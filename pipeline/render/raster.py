@@ -140,14 +140,10 @@ class Rasterizer:
               rows.stop, self.inverse_depth, self.winner, *self._scratch[band])
 
     def resolve_band(self, rows: slice, camera_to_world: np.ndarray, miss: int, out: tuple[np.ndarray, ...],
-                     surfaces: "bool | FramePass" = True) -> None:
+                     surfaces: bool = True) -> None:
         """Intersect each pixel's ray of rows `rows` with its winning triangle, into `out` = (depth, face,
         barycentric, normal, direction) as `EmbreeMesh.cast_rows` fills them. Without `surfaces`, the normals and
-        directions are left as they were (ambient light with an ideal sensor reads neither: ~7 MB of stores a frame).
-        A `fused.FramePass` as `surfaces` resolves the rows into its frame's buffers instead, leaving `out` alone."""
-        if not isinstance(surfaces, bool):
-            surfaces.resolve_band(self, rows, camera_to_world)
-            return
+        directions are left as they were (ambient light with an ideal sensor reads neither: ~7 MB of stores a frame)."""
         _resolve(self.mesh.corners, self.mesh.face_ids, self.winner, np.ascontiguousarray(camera_to_world, np.float64),
                  self.pixel_x, self.pixel_y, rows.start, rows.stop, miss, *out, surfaces)
 

@@ -18,6 +18,7 @@ import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,6 +26,9 @@ from pipeline.render.camera import pixel_rays
 from pipeline.render.embree import EmbreeMesh
 from pipeline.render.raster import ClusteredMesh, Rasterizer
 from pipeline.scenes.scene import Scene
+
+if TYPE_CHECKING:
+    from pipeline.render.fused import FramePass
 
 
 def available_cpus() -> int:
@@ -124,10 +128,12 @@ class SceneRaycaster:
         """The scene's BVH, for rays other than the camera's (indirect light)."""
         return self._bvh
 
-    def cast(self, camera: Camera, camera_to_world: np.ndarray, surfaces: bool = True) -> RayHits:
+    def cast(self, camera: Camera, camera_to_world: np.ndarray, surfaces: bool = True,
+             into: FramePass | None = None) -> RayHits:
         """Trace one frame from `camera_to_world` (4x4, OpenCV camera axes). Without `surfaces`, the z-buffer
         leaves the normal and direction buffers as they were, for a frame that reads neither (ambient light,
-        ideal sensor; the Embree cast fills them anyway).
+        ideal sensor; the Embree cast fills them anyway). With `into` (a z-buffer cast only), each band's winners
+        are resolved straight into that frame's buffers, and the hits returned are left stale.
 
         The arrays of the result are reused by the next cast of this caster: copy what must outlive it.
         """
@@ -141,6 +147,8 @@ class SceneRaycaster:
             rasterizer = Rasterizer(self._clusters, pixel_x, pixel_y, camera.fx, camera.fy) if self.rasterize else None
             self._setup = (camera, pixel_x, pixel_y, buffers, rasterizer)
         _, pixel_x, pixel_y, hits, rasterizer = self._setup
+        if into is not None and rasterizer is None:
+            raise ValueError("a FramePass resolves a z-buffer's winners: cast it with rasterize=True")
         out = (hits.depth, hits.face, hits.barycentric, hits.normal, hits.direction)
 
         def trace(rows: slice) -> None:
@@ -148,7 +156,10 @@ class SceneRaycaster:
                 self._bvh.cast_rows(rows, pixel_x, pixel_y, camera_to_world, self.miss_index, out)
                 return
             rasterizer.draw_band(rows, camera_to_world)
-            rasterizer.resolve_band(rows, camera_to_world, self.miss_index, out, surfaces)
+            if into is not None:
+                into.resolve_band(rasterizer, rows, camera_to_world)
+            else:
+                rasterizer.resolve_band(rows, camera_to_world, self.miss_index, out, surfaces)
 
         if rasterizer is not None:
             rasterizer.visible_clusters(camera_to_world)
@@ -157,7 +168,8 @@ class SceneRaycaster:
             trace(bands[0])
         else:
             list(thread_pool(self.threads).map(trace, bands))
-        np.isfinite(hits.depth, out=hits.hit)
+        if into is None:
+            np.isfinite(hits.depth, out=hits.hit)
         return hits
 
 

@@ -150,7 +150,7 @@ class VideoRenderer:
         sensor = self.embodiment.sensor
         frame = new_frame(self.camera.height, self.camera.width, dense=False)
         into = FramePass(frame, self.labels, self.colors if colour else None, sensor.near, sensor.far)
-        self.raycaster.cast(self.camera, camera_to_world, into)  # type: ignore[arg-type] (cast hands it to the resolve)
+        self.raycaster.cast(self.camera, camera_to_world, into=into)
         frame.segments = into.segments()
         return frame
 

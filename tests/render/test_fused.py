@@ -85,19 +85,23 @@ def test_depth_and_ids_alone_are_the_general_path_s() -> None:
         assert _same_segments(bare.segments, segments)
 
 
-def test_the_resolve_hands_its_band_to_a_frame_pass_and_leaves_the_hits_alone() -> None:
-    """Given a FramePass, `Rasterizer.resolve_band` fills its frame (the bytes the hits it would have written give)
-    and leaves the hit buffers as they were."""
+def test_a_cast_into_a_frame_pass_fills_its_frame_and_leaves_the_hits_alone() -> None:
+    """`SceneRaycaster.cast(into=...)` hands each band's winners to the FramePass (the bytes the hits it would have
+    written give) and leaves the caster's hit buffers as the previous cast left them."""
     scene, pose = _shaded_room(), POSES[1]
     labels, colors = SceneLabels(scene), SurfaceColors(scene)
+    caster = SceneRaycaster(scene, threads=2)
+    before = [np.copy(buffer) for buffer in dataclasses.astuple(caster.cast(CAMERA, POSES[0]))]
     frame = new_frame(CAMERA.height, CAMERA.width, dense=False)
-    untouched = resolved(FramePass(frame, labels, colors, 0.01, 1000.0), pose, scene)
-    assert all((buffer == value).all() for buffer, value in zip(untouched, (-1.0, -1, -1.0, 7.0, 7.0)))
+    stale = caster.cast(CAMERA, pose, into=FramePass(frame, labels, colors, 0.01, 1000.0))
+    assert all(np.array_equal(kept, now) for kept, now in zip(before, dataclasses.astuple(stale)))
     depth, face, barycentric, normal, direction = resolved(True, pose, scene)
     hits = RayHits(depth, face, barycentric, normal, direction, np.isfinite(depth))
     assert np.array_equal(frame.depth, depth_to_millimetres(depth, 0.01, 1000.0))
     assert np.array_equal(frame.panoptic, labels.object_ids[face]) and np.array_equal(frame.rgb, colors.albedo(hits))
     assert (frame.depth == 0).any() and frame.depth.any()
+    with pytest.raises(ValueError, match="z-buffer"):
+        SceneRaycaster(scene, rasterize=False).cast(CAMERA, pose, into=FramePass(frame, labels, colors, 0.01, 1.0))
 
 
 def test_only_ambient_frames_with_an_ideal_sensor_on_vertex_colours_and_a_z_buffer_are_fused() -> None:

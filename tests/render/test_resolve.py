@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.render.fused import FramePass
 from pipeline.render.raster import ClusteredMesh, Rasterizer
 from pipeline.render.raycaster import Camera
 from pipeline.scenes.scene import Scene
@@ -14,7 +13,7 @@ from tests.render.tiny_scenes import look_at, room_scene
 CAMERA = Camera(64, 48, 40.0, 40.0, 31.5, 23.5)
 
 
-def resolved(surfaces: bool | FramePass, pose: np.ndarray, scene: Scene | None = None) -> tuple[np.ndarray, ...]:
+def resolved(surfaces: bool, pose: np.ndarray, scene: Scene | None = None) -> tuple[np.ndarray, ...]:
     """The hit buffers (depth, face, barycentric, normal, direction) of CAMERA at `pose` in `scene` (the room), first
     filled with -1 (7 for the normals and directions), after one resolve of every row with `surfaces`."""
     scene, camera = scene or room_scene(), CAMERA
