@@ -120,7 +120,7 @@ class LightPaths:
         """The next direction of each path (n, 3) and the factor (n, 3) of its flux, f cos / pdf: the lobe
         is picked by numbers[:, 0] in proportion to what it reflects, then sampled (cosine or GGX)."""
         tables = self.tables
-        alpha = float(widened_alpha(tables.alpha, 1.0))
+        alpha = float(widened_alpha(tables.alpha, 1.0, np.float64))
         lobe = tables.albedo[table_entries(np.sum(normals * incoming, axis=1))]
         glossy_share = lobe / np.maximum(lobe + rho.mean(axis=1) * (1.0 - lobe), 1e-12)
         glossy = numbers[:, 0] < glossy_share

@@ -176,7 +176,7 @@ def _near_light(near, cells, directions, positions, hit_normals, distance, rho, 
         if not blocked[q]:
             direct = np.float64(spot[q]) * max(_dot(m, to_light), 0.0) / (away * away)
         base = diffuse[_table_entry(_dot(m, towards_x))] / np.float32(math.pi)
-        lobe = _lobe(m, to_light, towards_x, widened_alpha(alpha, cos_at_x), ior, energy, half)
+        lobe = _lobe(m, to_light, towards_x, widened_alpha(alpha, cos_at_x, np.float64), ior, energy, half)
         seen = math.pi * _lobe(n, d, eye, np.float64(alpha), ior, energy, half)
         falloff = distance[q] / clamp
         for c in range(3):
@@ -213,4 +213,4 @@ def _lobe(normal, a, b, alpha, ior, energy, half):  # pragma: no cover (compiled
     if not (cos_a > 1e-6 and cos_b > 1e-6 and cos_h > 0 and cos_bh > 0):
         return 0.0
     cos_a, cos_b, cos_bh = max(cos_a, 1e-6), max(cos_b, 1e-6), max(cos_bh, 1e-6)
-    return glossy_brdf(cos_h, cos_a, cos_b, cos_bh, alpha, ior) * np.float64(energy[_table_entry(cos_b)])
+    return glossy_brdf(cos_h, cos_a, cos_b, cos_bh, alpha, ior, np.float64) * np.float64(energy[_table_entry(cos_b)])

@@ -50,9 +50,11 @@ def spot_pattern(illumination: Illumination, count: int, interleave: int, rng: n
 
 
 @numba.njit(nogil=True, cache=True)
-def widened_alpha(alpha, cos_x):  # pragma: no cover (compiled)
-    """GGX alpha of a lobe after a cosine bounce at cos_x, as Cycles' Filter Glossy widens it (scalars or arrays)."""
-    return np.maximum(alpha, 0.5 * np.sqrt(np.maximum(0.0, 1.0 - FILTER_GLOSSY * cos_x / math.pi)))
+def widened_alpha(alpha, cos_x, real):  # pragma: no cover (compiled)
+    """GGX alpha of a lobe after a cosine bounce at cos_x, as Cycles' Filter Glossy widens it (scalars or arrays),
+    in the float type `real` (np.float32 or np.float64, as `material.glossy_brdf`)."""
+    return np.maximum(alpha, real(0.5) * np.sqrt(np.maximum(real(0.0), real(1.0) - real(FILTER_GLOSSY) * cos_x
+                                                                      / real(math.pi))))
 
 
 def table_entries(mu: np.ndarray) -> np.ndarray:
