@@ -62,6 +62,12 @@ def table_entries(mu: np.ndarray) -> np.ndarray:
     return np.rint(np.clip(mu, 0.0, 1.0) * (TABLE_SIZE - 1)).astype(np.int64)
 
 
+@numba.njit(nogil=True, cache=True, inline="always")
+def table_entry(mu):  # pragma: no cover (compiled)
+    """The material tables' entry of a cosine, as `table_entries` (clipped to [0, 1], rounded half to even)."""
+    return np.int64(np.rint(min(max(mu, 0.0), 1.0) * (TABLE_SIZE - 1)))
+
+
 def cosine_directions(normals: np.ndarray, numbers: np.ndarray) -> np.ndarray:
     """Unit directions (n, 3) distributed as cos(theta) about `normals`, from uniform `numbers` (n, 2)."""
     return _about_normals(np.sqrt(np.maximum(0.0, 1.0 - numbers[:, 0])), numbers[:, 1], normals)

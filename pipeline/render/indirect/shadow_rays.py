@@ -29,10 +29,11 @@ ROULETTE_BELOW = 2.0
 
 def gather_lights(mesh: EmbreeMesh, tables: ReflectionTables, clamp_distance: float, seed: int, points: np.ndarray,
                   normals: np.ndarray, eyes: np.ndarray, depth: np.ndarray, row_offset: int, interleave: int,
-                  lights: VirtualLights, starts: np.ndarray, out: np.ndarray) -> None:
-    """Add to `out` (rows, columns, 6) what the lights of each point's subset bring it past the shadow rays
-    (lights sorted by subset: subset g is starts[g]..starts[g + 1]; `row_offset`: the grid row of row 0)."""
-    shadow = _shadow_rays(points, normals, eyes, depth, row_offset, interleave, light_rows(lights), starts,
+                  lights: np.ndarray, starts: np.ndarray, out: np.ndarray) -> None:
+    """Add to `out` (rows, columns, 6) what the lights (`light_rows`) of each point's subset bring it past the
+    shadow rays (lights sorted by subset: subset g is starts[g]..starts[g + 1]; `row_offset`: the grid row of
+    row 0)."""
+    shadow = _shadow_rays(points, normals, eyes, depth, row_offset, interleave, lights, starts,
                           np.float32(clamp_distance ** 2), np.float32(SURFACE_OFFSET), tables.diffuse, tables.energy,
                           np.float32(tables.alpha), np.float32(tables.ior), np.float32(ROULETTE_BELOW), np.uint64(seed))
     cells, contributions, ray_origins, ray_directions = shadow
