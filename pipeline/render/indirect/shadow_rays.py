@@ -4,7 +4,8 @@ Every gather point x sums E = sum_j Phi_j f_j cos_j cos_x / max(r^2, clamp^2) ov
 sees, and the glossy term sum_j E_j pi f_x. Interleaved sampling (Keller and Heidrich 2001): the lights are
 split into interleave^2 stratified subsets and neighbouring gather points take different subsets, so each point
 pays for 1 / interleave^2 of the shadow rays; Russian roulette skips most rays of lights that bring a point
-little (`_roulette`).
+little (`ROULETTE_BELOW`). A point's pairs are valued in float32 on SIMD lanes before the roulette picks
+(`_value_pairs`).
 """
 
 from __future__ import annotations
@@ -43,15 +44,12 @@ def gather_lights(mesh: EmbreeMesh, tables: ReflectionTables, clamp_distance: fl
 
 
 def light_rows(lights: VirtualLights) -> np.ndarray:
-    """(LIGHT_ROWS, n) float32: the lights one quantity a row, so the pair loop reads consecutive lights from
+    """(16, n) float32: the lights one quantity a row, so the pair loop reads consecutive lights from
     consecutive addresses (it runs on SIMD lanes): position (3), normal (3), direction back to where the light came
     from (3), the cosine of that direction to the normal, flux times albedo (3), flux (3)."""
     cos_in = np.sum(lights.normals * lights.incoming, axis=1, dtype=np.float32)[:, None]
     return np.ascontiguousarray(np.concatenate([lights.positions, lights.normals, lights.incoming, cos_in,
                                                 lights.coloured_flux, lights.flux], axis=1).T, np.float32)
-
-
-LIGHT_ROWS = 16
 
 
 @numba.njit(nogil=True, cache=True, inline="always")
