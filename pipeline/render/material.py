@@ -150,18 +150,21 @@ def lobe_albedos(mu: np.ndarray, alpha: float, ior: float) -> tuple[np.ndarray, 
     return single, fresnel
 
 
-@numba.njit(nogil=True, cache=True)
-def glossy_brdf(cos_h, cos_i, cos_o, cos_oh, alpha, ior):  # pragma: no cover (compiled)
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def glossy_brdf(cos_h, cos_i, cos_o, cos_oh, alpha, ior, real):  # pragma: no cover (compiled)
     """The single-scattering GGX lobe D G2 F / (4 mu_i mu_o) for unit directions at cosines cos_i, cos_o to
-    the normal, cos_h between normal and half vector, cos_oh between w_o and the half vector (scalars or
-    arrays alike: the compiled gather calls it per pair, numpy code on whole arrays)."""
+    the normal, cos_h between normal and half vector, cos_oh between w_o and the half vector, computed in the
+    float type `real` (np.float32 or np.float64: its constants take that type, so float32 arguments stay float32;
+    the gather's pairs are float32, which vectorises). Compiled callers pass scalars; outside the domain (a
+    cosine <= 0) the value is meaningless and must be masked by the caller (no error is raised)."""
+    one = real(1.0)
     a2 = alpha * alpha
-    d = cos_h * cos_h * (a2 - 1.0) + 1.0
-    distribution = a2 / (math.pi * d * d)
-    lambda_i = 0.5 * (np.sqrt(1.0 + a2 * (1.0 / (cos_i * cos_i) - 1.0)) - 1.0)
-    lambda_o = 0.5 * (np.sqrt(1.0 + a2 * (1.0 / (cos_o * cos_o) - 1.0)) - 1.0)
-    g = np.sqrt(np.maximum(ior * ior - 1.0 + cos_oh * cos_oh, 0.0))
+    d = cos_h * cos_h * (a2 - one) + one
+    distribution = a2 / (real(math.pi) * d * d)
+    lambda_i = real(0.5) * (np.sqrt(one + a2 * (one / (cos_i * cos_i) - one)) - one)
+    lambda_o = real(0.5) * (np.sqrt(one + a2 * (one / (cos_o * cos_o) - one)) - one)
+    g = np.sqrt(max(ior * ior - one + cos_oh * cos_oh, real(0.0)))
     a = (g - cos_oh) / (g + cos_oh)
-    b = (cos_oh * (g + cos_oh) - 1.0) / (cos_oh * (g - cos_oh) + 1.0)
-    fresnel = 0.5 * a * a * (1.0 + b * b)
-    return distribution * fresnel / ((1.0 + lambda_i + lambda_o) * 4.0 * cos_i * cos_o)
+    b = (cos_oh * (g + cos_oh) - one) / (cos_oh * (g - cos_oh) + one)
+    fresnel = real(0.5) * a * a * (one + b * b)
+    return distribution * fresnel / ((one + lambda_i + lambda_o) * real(4.0) * cos_i * cos_o)

@@ -9,9 +9,10 @@ import pytest
 
 from pipeline.config import Illumination, IndirectLight
 from pipeline.render.indirect import IndirectGather, shadow_rays
+from pipeline.render.indirect.light_paths import SURFACE_OFFSET
 from pipeline.render.indirect.shadow_rays import _accumulate as accumulate
 from pipeline.render.lighting import SurfaceColors, srgb_to_linear
-from pipeline.render.material import multiscatter_energy, reflection_tables
+from pipeline.render.material import TABLE_SIZE, glossy_brdf, multiscatter_energy, reflection_tables
 from pipeline.render.raycaster import SceneRaycaster
 from pipeline.render.renderer import VideoRenderer
 from tests.render.tiny_scenes import _Builder, embodiment, look_at, room_scene
@@ -139,6 +140,57 @@ def test_the_glossy_term_of_the_pairs_the_roulette_keeps_counts_as_their_irradia
     assert every_ray[:, 3:].mean() > 0.02 * every_ray[:, :3].mean()  # the lobe does reflect some
     for channel in range(6):
         assert with_roulette[:, channel].mean() == pytest.approx(every_ray[:, channel].mean(), rel=0.01)
+
+
+def _pairs_in_float64(points: np.ndarray, normals: np.ndarray, eyes: np.ndarray, lights, tables, clamp: float
+                      ) -> np.ndarray:
+    """(n, 6) the gather's sum over every light, pair by pair in float64 (no shadows, no roulette): irradiance
+    Phi f_y cos_y cos_x / max(r^2, clamp^2) with f_y = base rho / pi + the light's lobe (widened after x's
+    bounce), and x's glossy term pi f_x(to y, to the eye) times it."""
+    def lobe(n, a, b, alpha):
+        h = (a + b) / np.linalg.norm(a + b)
+        cos_a, cos_b = n @ a, n @ b
+        if min(cos_a, cos_b, n @ h, b @ h) <= 0:
+            return 0.0
+        entry = int(round(min(cos_b, 1.0) * (TABLE_SIZE - 1)))
+        return glossy_brdf(n @ h, cos_a, cos_b, b @ h, alpha, tables.ior, np.float64) * tables.energy[entry]
+    out = np.zeros((len(points), 6))
+    lifted = points + normals * SURFACE_OFFSET * 2.0  # off the surface as the shadow rays start (at depth 1)
+    for x, n, eye, total in zip(lifted.astype(float), normals.astype(float), eyes.astype(float), out):
+        for y, m, w, flux, coloured in zip(*(part.astype(float) for part in (
+                lights.positions, lights.normals, lights.incoming, lights.flux, lights.coloured_flux))):
+            r = np.linalg.norm(y - x)
+            d = (y - x) / r
+            cos_x, cos_y = n @ d, -(m @ d)
+            if cos_x <= 0 or cos_y <= 0:
+                continue
+            base = tables.diffuse[int(round(cos_y * (TABLE_SIZE - 1)))] / math.pi
+            widened = max(tables.alpha, 0.5 * math.sqrt(max(0.0, 1.0 - cos_x / math.pi)))
+            received = (coloured * base + flux * lobe(m, w, -d, widened)) * cos_x * cos_y / max(r * r, clamp * clamp)
+            total[:3] += received
+            total[3:] += received * math.pi * lobe(n, d, eye, tables.alpha)
+    return out
+
+
+def test_the_pairs_valued_on_simd_lanes_equal_the_sum_in_float64(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The pair loop runs branch-free in float32 (its masks are selects, its table reads a second loop): every
+    # mask and term must still give the formula's value. Inside a convex box no pair is shadowed.
+    scene, sides = _box(2.0)
+    light = _spot(bounces=2, material="principled", lights=64)
+    gather = IndirectGather(SceneRaycaster(scene).mesh, SurfaceColors(scene), light, seed=0)
+    points, normals = _surface_samples(sides, 60, np.random.default_rng(2))
+    pose = look_at(np.zeros(3), np.array([0.3, 0.2, 1.0]))
+    eyes = (pose[:3, 3] - points) / np.linalg.norm(pose[:3, 3] - points, axis=1, keepdims=True)
+    lights = gather.virtual_lights(pose)
+    monkeypatch.setattr(shadow_rays, "ROULETTE_BELOW", 0.0)
+    out = np.zeros((1, len(points), 6), np.float32)
+    shadow_rays.gather_lights(gather.mesh, gather.tables, 0.1, 0, points[None].astype(np.float32),
+                              normals[None].astype(np.float32), eyes[None].astype(np.float32),
+                              np.ones((1, len(points)), np.float32), 0, 1, shadow_rays.light_rows(lights),
+                              np.array([0, len(lights.positions)], np.int64), out)
+    expected = _pairs_in_float64(points, normals, eyes, lights, gather.tables, 0.1)
+    assert expected[:, 3:].max() > 0.01 * expected[:, :3].max()  # the glossy term is there to check
+    np.testing.assert_allclose(out[0], expected, rtol=2e-3, atol=1e-5 * expected.max())
 
 
 def test_same_seed_same_bytes_and_a_still_camera_does_not_flicker() -> None:

@@ -24,8 +24,10 @@ FIT_RIDGE = 0.1
 
 
 @numba.njit(nogil=True, cache=True, inline="always")
-def similarity(px, py, pz, nx, ny, nz, depth, points, point_normals, point_depth, i, k):  # pragma: no cover
-    """Geometric weight in [0, 1] of gather point (i, k) for a surface at p with normal n and depth."""
+def similarity(px, py, pz, nx, ny, nz, tolerance, points, point_normals, point_depth, i, k):  # pragma: no cover
+    """Geometric weight in [0, 1] of gather point (i, k) for a surface at p with normal n; `tolerance`: (plane
+    tolerance, its inverse) at the surface's depth (`plane_tolerance`, once per surface rather than a division
+    per point)."""
     if not np.isfinite(point_depth[i, k]):
         return np.float32(0.0)
     cosine = nx * point_normals[i, k, 0] + ny * point_normals[i, k, 1] + nz * point_normals[i, k, 2]
@@ -33,14 +35,20 @@ def similarity(px, py, pz, nx, ny, nz, depth, points, point_normals, point_depth
         return np.float32(0.0)
     plane = abs((px - points[i, k, 0]) * point_normals[i, k, 0] + (py - points[i, k, 1]) * point_normals[i, k, 1]
                 + (pz - points[i, k, 2]) * point_normals[i, k, 2])
-    tolerance = np.float32(PLANE_TOLERANCE) * depth
-    if plane >= tolerance:
+    if plane >= tolerance[0]:
         return np.float32(0.0)
-    plane /= tolerance
+    plane *= tolerance[1]
     cosine *= cosine  # cos^8 by squaring (a float power costs more than the rest of the weight)
     cosine *= cosine
     cosine *= cosine
     return cosine * (np.float32(1.0) - plane * plane)
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def plane_tolerance(depth):  # pragma: no cover
+    """(PLANE_TOLERANCE x depth, its inverse): `similarity`'s tolerance for a surface at `depth`."""
+    tolerance = np.float32(PLANE_TOLERANCE) * depth
+    return tolerance, np.float32(1.0) / tolerance
 
 
 @numba.njit(nogil=True, cache=True)
@@ -83,13 +91,14 @@ def _block_sums(gathered, points, point_normals, point_depth, i, k, top, left, i
     tx, ty, tz = tx / length, ty / length, tz / length
     bx, by, bz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
     reach = np.float32(FILTER_REACH) * depth
+    tolerance = plane_tolerance(depth)
     moments[:] = 0.0
     sums[:] = 0.0
     bounds[0, :] = np.inf
     bounds[1, :] = -np.inf
     for a in range(top, min(top + interleave, point_depth.shape[0])):
         for b in range(left, min(left + interleave, point_depth.shape[1])):
-            w = similarity(px, py, pz, nx, ny, nz, depth, points, point_normals, point_depth, a, b)
+            w = similarity(px, py, pz, nx, ny, nz, tolerance, points, point_normals, point_depth, a, b)
             if w <= 0:
                 continue
             dx, dy, dz = points[a, b, 0] - px, points[a, b, 1] - py, points[a, b, 2] - pz

@@ -19,7 +19,7 @@ from pipeline.render.indirect.grid import CHANNELS, GatherGrid
 from pipeline.render.indirect.light_paths import LightPaths, VirtualLights
 from pipeline.render.indirect.near_field import add_near_field, near_directions
 from pipeline.render.indirect.sampling import SEED_STREAM
-from pipeline.render.indirect.shadow_rays import gather_lights
+from pipeline.render.indirect.shadow_rays import gather_lights, light_rows
 from pipeline.render.indirect.upsample import upsample_blocks
 from pipeline.render.lighting import INDIRECT_BLOCK, SurfaceColors
 from pipeline.render.material import reflection_tables
@@ -68,7 +68,7 @@ class IndirectGather:
         depth = np.ones((1, len(points)), np.float32)
         out = np.zeros((1, len(points), CHANNELS), np.float32)
         points, normals = np.asarray(points, np.float32)[None], np.asarray(normals, np.float32)[None]
-        self._gather(points, normals, eyes[None], depth, 0, 1, lights, starts, out)
+        self._gather(points, normals, eyes[None], depth, 0, 1, light_rows(lights), starts, out)
         local = self._near_directions(1, points.shape[1])
         self._near_field(points, normals, eyes[None], depth, local, camera_to_world, out)
         return out[0]
@@ -87,10 +87,11 @@ class IndirectGather:
         lights = VirtualLights(lights.positions[order], lights.normals[order], lights.incoming[order],
                                lights.flux[order] * np.float32(group_count),
                                lights.coloured_flux[order] * np.float32(group_count), lights.groups[order])
+        rows = light_rows(lights)  # once per frame: every band of both grids reads them
         origin = np.asarray(camera_to_world, np.float32)[:3, 3].copy()
         stride = self.settings.gather_stride
         grid = GatherGrid(hits.depth, hits.normal, hits.direction, origin, stride)
-        combined = self._gather_filtered(grid, lights, starts, camera_to_world)
+        combined = self._gather_filtered(grid, rows, starts, camera_to_world)
         height, width = hits.depth.shape
         out = (np.empty((-(-height // INDIRECT_BLOCK), -(-width // INDIRECT_BLOCK), CHANNELS), np.float32)
                if out is None else out)
@@ -101,13 +102,13 @@ class IndirectGather:
                             stride, INDIRECT_BLOCK, band.start, out[band], orphans[band])
 
         self._run_bands(upsample, len(out))
-        self._fill_orphans(hits, origin, orphans, lights, starts, camera_to_world, out)
+        self._fill_orphans(hits, origin, orphans, rows, starts, camera_to_world, out)
         return out
 
-    def _gather_filtered(self, grid: GatherGrid, lights: VirtualLights, starts: np.ndarray,
+    def _gather_filtered(self, grid: GatherGrid, lights: np.ndarray, starts: np.ndarray,
                          camera_to_world: np.ndarray) -> np.ndarray:
-        """(rows, columns, 6) light at the points of `grid`: each point's subset of `lights` and its near field,
-        then the interleave filter."""
+        """(rows, columns, 6) light at the points of `grid`: each point's subset of `lights` (`light_rows`) and its
+        near field, then the interleave filter."""
         rows, columns = grid.depth.shape
         interleave = self.settings.interleave
         gathered = np.zeros((rows, columns, CHANNELS), np.float32)
@@ -127,7 +128,7 @@ class IndirectGather:
                                                             band, target), rows)
         return combined
 
-    def _fill_orphans(self, hits: RayHits, origin: np.ndarray, orphans: np.ndarray, lights: VirtualLights,
+    def _fill_orphans(self, hits: RayHits, origin: np.ndarray, orphans: np.ndarray, lights: np.ndarray,
                       starts: np.ndarray, camera_to_world: np.ndarray, out: np.ndarray) -> None:
         """Gather the light of the `orphans` blocks of `out` anew. Their surface has none of the four gather points
         around them: a door frame, a wall seen edge-on, the top of a box, narrower than the gather stride. Taking
@@ -166,8 +167,8 @@ class IndirectGather:
         return self._near_cache[rows, columns]
 
     def _gather(self, points: np.ndarray, normals: np.ndarray, eyes: np.ndarray, depth: np.ndarray, row_offset: int,
-                interleave: int, lights: VirtualLights, starts: np.ndarray, out: np.ndarray) -> None:
-        """Add to `out` what the lights of each point's subset bring it (shadow_rays.gather_lights)."""
+                interleave: int, lights: np.ndarray, starts: np.ndarray, out: np.ndarray) -> None:
+        """Add to `out` what the lights (`light_rows`) of each point's subset bring it (shadow_rays.gather_lights)."""
         gather_lights(self.mesh, self.tables, self.settings.clamp_distance, self._seed, points, normals, eyes, depth,
                       row_offset, interleave, lights, starts, out)
 

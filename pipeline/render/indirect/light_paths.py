@@ -11,14 +11,16 @@ and those beside, below and above the view that the 180-degree cone also lights.
 
 from __future__ import annotations
 
+import math
+
+import numba
 import numpy as np
 
 from pipeline.config import Illumination
 from pipeline.render.embree import EmbreeMesh
-from pipeline.render.indirect.sampling import (cosine_directions, ggx_half_vectors, spot_pattern, table_entries,
-                                               widened_alpha)
+from pipeline.render.indirect.sampling import spot_pattern, table_entries, table_entry, widened_alpha
 from pipeline.render.lighting import SurfaceColors, srgb_to_linear
-from pipeline.render.material import fresnel_dielectric, reflection_tables, smith_g2
+from pipeline.render.material import glossy_brdf, reflection_tables
 
 # Offset of shadow and bounce rays off their surface, relative to the distance from the camera (float32
 # hits are accurate to ~1e-7 of that distance).
@@ -120,23 +122,63 @@ class LightPaths:
         """The next direction of each path (n, 3) and the factor (n, 3) of its flux, f cos / pdf: the lobe
         is picked by numbers[:, 0] in proportion to what it reflects, then sampled (cosine or GGX)."""
         tables = self.tables
-        alpha = float(widened_alpha(tables.alpha, 1.0))
-        lobe = tables.albedo[table_entries(np.sum(normals * incoming, axis=1))]
-        glossy_share = lobe / np.maximum(lobe + rho.mean(axis=1) * (1.0 - lobe), 1e-12)
-        glossy = numbers[:, 0] < glossy_share
-        directions = cosine_directions(normals, numbers[:, 1:])
-        half = ggx_half_vectors(normals, numbers[:, 1:], alpha)
-        cos_oh = np.sum(incoming * half, axis=1)
-        mirrored = 2.0 * cos_oh[:, None] * half - incoming
-        directions = np.where(glossy[:, None], mirrored, directions)
-        cos_o = np.sum(normals * directions, axis=1)
-        cos_i, cos_h = np.sum(normals * incoming, axis=1), np.sum(normals * half, axis=1)
-        energy = tables.energy[table_entries(cos_o)]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            # GGX sampled by D cos_h: f cos_o / pdf = G2 F (w_o . h) / (mu_i cos_h).
-            glossy_weight = (smith_g2(cos_i, cos_o, alpha) * fresnel_dielectric(cos_oh, tables.ior) * cos_oh
-                             / (cos_i * cos_h) * energy / glossy_share)
-            glossy_weight = np.where(cos_o > 0, glossy_weight, 0.0)[:, None]
-            diffuse_weight = rho * (1.0 - tables.albedo[table_entries(cos_o)])[:, None] / (1.0 - glossy_share)[:, None]
-        weights = np.where(glossy[:, None], glossy_weight, diffuse_weight)
-        return directions.astype(np.float32), weights
+        return _scatter_paths(normals, incoming, rho, numbers, tables.albedo, tables.energy,
+                              float(widened_alpha(tables.alpha, 1.0, np.float64)), tables.ior)
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _scatter_paths(normals, incoming, rho, numbers, albedo, energy, alpha, ior):  # pragma: no cover (compiled)
+    """`LightPaths._scatter`, path by path (float64): the lobe is glossy when numbers[p, 0] < its share of what
+    the surface reflects; the direction comes from numbers[p, 1:] (a cosine direction about the normal, or the
+    mirror of w_i about a GGX half vector sampled by D cos_h); the factor is f cos_o / pdf, per channel for the
+    base, G2 F (w_o . h) / (mu_i cos_h) M(mu_o) for the lobe, each divided by the lobe's chance."""
+    count = len(normals)
+    directions = np.empty((count, 3), np.float32)
+    weights = np.empty((count, 3), np.float64)
+    a2 = alpha * alpha
+    for p in range(count):
+        nx, ny, nz = np.float64(normals[p, 0]), np.float64(normals[p, 1]), np.float64(normals[p, 2])
+        wx, wy, wz = np.float64(incoming[p, 0]), np.float64(incoming[p, 1]), np.float64(incoming[p, 2])
+        cos_i = nx * wx + ny * wy + nz * wz
+        lobe = np.float64(albedo[table_entry(cos_i)])
+        glossy_share = lobe / max(lobe + (rho[p, 0] + rho[p, 1] + rho[p, 2]) / 3.0 * (1.0 - lobe), 1e-12)
+        u, turn = numbers[p, 1], numbers[p, 2]
+        glossy = numbers[p, 0] < glossy_share
+        # The sampled direction (the half vector for the lobe) at cos_theta to the normal, azimuth 2 pi turn.
+        cos_theta = math.sqrt((1.0 - u) / (1.0 + (a2 - 1.0) * u)) if glossy else math.sqrt(max(0.0, 1.0 - u))
+        sx, sy, sz = _about_normal(cos_theta, turn, nx, ny, nz)
+        if glossy:
+            cos_oh = wx * sx + wy * sy + wz * sz
+            dx, dy, dz = 2.0 * cos_oh * sx - wx, 2.0 * cos_oh * sy - wy, 2.0 * cos_oh * sz - wz
+            cos_o, cos_h = nx * dx + ny * dy + nz * dz, nx * sx + ny * sy + nz * sz
+            weight = 0.0
+            if cos_o > 0:
+                # f cos_o / pdf with f = D G2 F / (4 mu_i mu_o) and pdf = D cos_h / (4 w_o . h).
+                d = cos_h * cos_h * (a2 - 1.0) + 1.0
+                distribution = a2 / (math.pi * d * d)
+                weight = (glossy_brdf(cos_h, cos_i, cos_o, cos_oh, alpha, ior, np.float64) * 4.0 * cos_o * cos_oh
+                          / (distribution * cos_h) * energy[table_entry(cos_o)] / glossy_share)
+            for c in range(3):
+                weights[p, c] = weight
+        else:
+            dx, dy, dz = sx, sy, sz
+            cos_o = nx * dx + ny * dy + nz * dz
+            base = 1.0 - albedo[table_entry(cos_o)]
+            for c in range(3):
+                weights[p, c] = rho[p, c] * base / (1.0 - glossy_share)
+        directions[p, 0], directions[p, 1], directions[p, 2] = dx, dy, dz
+    return directions, weights
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _about_normal(cos_theta, turn, nx, ny, nz):  # pragma: no cover (compiled)
+    """The unit direction at cos_theta to the normal n, at azimuth 2 pi turn about it (`sampling._about_normals`'
+    frame: the tangent from the x axis, or the y axis for a normal near x)."""
+    hx, hy, hz = (0.0, 1.0, 0.0) if abs(nx) > 0.9 else (1.0, 0.0, 0.0)
+    tx, ty, tz = hy * nz - hz * ny, hz * nx - hx * nz, hx * ny - hy * nx
+    length = math.sqrt(tx * tx + ty * ty + tz * tz)
+    tx, ty, tz = tx / length, ty / length, tz / length
+    bx, by, bz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
+    radius, phi = math.sqrt(max(0.0, 1.0 - cos_theta * cos_theta)), 2.0 * math.pi * turn
+    a, b = radius * math.cos(phi), radius * math.sin(phi)
+    return a * tx + b * bx + cos_theta * nx, a * ty + b * by + cos_theta * ny, a * tz + b * bz + cos_theta * nz

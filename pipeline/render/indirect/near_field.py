@@ -17,9 +17,9 @@ from pipeline.config import Illumination
 from pipeline.render.embree import EmbreeMesh
 from pipeline.render.indirect.grid import CHANNELS
 from pipeline.render.indirect.light_paths import SURFACE_OFFSET
-from pipeline.render.indirect.sampling import SEED_STREAM, local_directions, widened_alpha
+from pipeline.render.indirect.sampling import SEED_STREAM, local_directions, table_entry, widened_alpha
 from pipeline.render.lighting import SurfaceColors, cone_falloff, radiant_intensity, srgb_to_linear
-from pipeline.render.material import TABLE_SIZE, ReflectionTables, glossy_brdf
+from pipeline.render.material import ReflectionTables, glossy_brdf
 
 # Rays per gather point that find the surfaces nearer than the clamp distance (bias compensation).
 NEAR_FIELD_RAYS = 8
@@ -175,8 +175,8 @@ def _near_light(near, cells, directions, positions, hit_normals, distance, rho, 
         direct = 0.0
         if not blocked[q]:
             direct = np.float64(spot[q]) * max(_dot(m, to_light), 0.0) / (away * away)
-        base = diffuse[_table_entry(_dot(m, towards_x))] / np.float32(math.pi)
-        lobe = _lobe(m, to_light, towards_x, widened_alpha(alpha, cos_at_x), ior, energy, half)
+        base = diffuse[table_entry(_dot(m, towards_x))] / np.float32(math.pi)
+        lobe = _lobe(m, to_light, towards_x, widened_alpha(alpha, cos_at_x, np.float64), ior, energy, half)
         seen = math.pi * _lobe(n, d, eye, np.float64(alpha), ior, energy, half)
         falloff = distance[q] / clamp
         for c in range(3):
@@ -196,12 +196,6 @@ def _dot(a, b):  # pragma: no cover (compiled)
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-@numba.njit(nogil=True, cache=True, inline="always")
-def _table_entry(mu):  # pragma: no cover (compiled)
-    """The material tables' entry of a cosine, as `table_entries` (clipped to [0, 1], rounded half to even)."""
-    return np.int64(np.rint(min(max(mu, 0.0), 1.0) * (TABLE_SIZE - 1)))
-
-
 @numba.njit(nogil=True, cache=True)
 def _lobe(normal, a, b, alpha, ior, energy, half):  # pragma: no cover (compiled)
     """The lobe f(a, b) M(cos_b) of a surface of `normal` between unit directions a and b (float64 3-vectors;
@@ -213,4 +207,4 @@ def _lobe(normal, a, b, alpha, ior, energy, half):  # pragma: no cover (compiled
     if not (cos_a > 1e-6 and cos_b > 1e-6 and cos_h > 0 and cos_bh > 0):
         return 0.0
     cos_a, cos_b, cos_bh = max(cos_a, 1e-6), max(cos_b, 1e-6), max(cos_bh, 1e-6)
-    return glossy_brdf(cos_h, cos_a, cos_b, cos_bh, alpha, ior) * np.float64(energy[_table_entry(cos_b)])
+    return glossy_brdf(cos_h, cos_a, cos_b, cos_bh, alpha, ior, np.float64) * np.float64(energy[table_entry(cos_b)])

@@ -50,14 +50,22 @@ def spot_pattern(illumination: Illumination, count: int, interleave: int, rng: n
 
 
 @numba.njit(nogil=True, cache=True)
-def widened_alpha(alpha, cos_x):  # pragma: no cover (compiled)
-    """GGX alpha of a lobe after a cosine bounce at cos_x, as Cycles' Filter Glossy widens it (scalars or arrays)."""
-    return np.maximum(alpha, 0.5 * np.sqrt(np.maximum(0.0, 1.0 - FILTER_GLOSSY * cos_x / math.pi)))
+def widened_alpha(alpha, cos_x, real):  # pragma: no cover (compiled)
+    """GGX alpha of a lobe after a cosine bounce at cos_x, as Cycles' Filter Glossy widens it (scalars or arrays),
+    in the float type `real` (np.float32 or np.float64, as `material.glossy_brdf`)."""
+    return np.maximum(alpha, real(0.5) * np.sqrt(np.maximum(real(0.0), real(1.0) - real(FILTER_GLOSSY) * cos_x
+                                                                      / real(math.pi))))
 
 
 def table_entries(mu: np.ndarray) -> np.ndarray:
     """Entries of the material tables for cosines `mu` (clipped to [0, 1])."""
     return np.rint(np.clip(mu, 0.0, 1.0) * (TABLE_SIZE - 1)).astype(np.int64)
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def table_entry(mu):  # pragma: no cover (compiled)
+    """The material tables' entry of a cosine, as `table_entries` (clipped to [0, 1], rounded half to even)."""
+    return np.int64(np.rint(min(max(mu, 0.0), 1.0) * (TABLE_SIZE - 1)))
 
 
 def cosine_directions(normals: np.ndarray, numbers: np.ndarray) -> np.ndarray:

@@ -4,7 +4,8 @@ Every gather point x sums E = sum_j Phi_j f_j cos_j cos_x / max(r^2, clamp^2) ov
 sees, and the glossy term sum_j E_j pi f_x. Interleaved sampling (Keller and Heidrich 2001): the lights are
 split into interleave^2 stratified subsets and neighbouring gather points take different subsets, so each point
 pays for 1 / interleave^2 of the shadow rays; Russian roulette skips most rays of lights that bring a point
-little (`_roulette`).
+little (`ROULETTE_BELOW`). A point's pairs are valued in float32 on SIMD lanes before the roulette picks
+(`_value_pairs`).
 """
 
 from __future__ import annotations
@@ -29,50 +30,58 @@ ROULETTE_BELOW = 2.0
 
 def gather_lights(mesh: EmbreeMesh, tables: ReflectionTables, clamp_distance: float, seed: int, points: np.ndarray,
                   normals: np.ndarray, eyes: np.ndarray, depth: np.ndarray, row_offset: int, interleave: int,
-                  lights: VirtualLights, starts: np.ndarray, out: np.ndarray) -> None:
-    """Add to `out` (rows, columns, 6) what the lights of each point's subset bring it past the shadow rays
-    (lights sorted by subset: subset g is starts[g]..starts[g + 1]; `row_offset`: the grid row of row 0)."""
-    shadow = _shadow_rays(points, normals, eyes, depth, row_offset, interleave, lights.positions, lights.normals,
-                          lights.incoming, lights.flux, lights.coloured_flux, starts, np.float32(clamp_distance ** 2),
-                          np.float32(SURFACE_OFFSET), tables.diffuse, tables.energy, tables.alpha, tables.ior,
-                          np.float32(ROULETTE_BELOW), np.uint64(seed))
+                  lights: np.ndarray, starts: np.ndarray, out: np.ndarray) -> None:
+    """Add to `out` (rows, columns, 6) what the lights (`light_rows`) of each point's subset bring it past the
+    shadow rays (lights sorted by subset: subset g is starts[g]..starts[g + 1]; `row_offset`: the grid row of
+    row 0)."""
+    shadow = _shadow_rays(points, normals, eyes, depth, row_offset, interleave, lights, starts,
+                          np.float32(clamp_distance ** 2), np.float32(SURFACE_OFFSET), tables.diffuse, tables.energy,
+                          np.float32(tables.alpha), np.float32(tables.ior), np.float32(ROULETTE_BELOW), np.uint64(seed))
     cells, contributions, ray_origins, ray_directions = shadow
     blocked = np.empty(len(cells), np.bool_)
     mesh.occluded(ray_origins, ray_directions, np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
     _accumulate(cells, contributions, blocked, out)
 
 
+def light_rows(lights: VirtualLights) -> np.ndarray:
+    """(16, n) float32: the lights one quantity a row, so the pair loop reads consecutive lights from
+    consecutive addresses (it runs on SIMD lanes): position (3), normal (3), direction back to where the light came
+    from (3), the cosine of that direction to the normal, flux times albedo (3), flux (3)."""
+    cos_in = np.sum(lights.normals * lights.incoming, axis=1, dtype=np.float32)[:, None]
+    return np.ascontiguousarray(np.concatenate([lights.positions, lights.normals, lights.incoming, cos_in,
+                                                lights.coloured_flux, lights.flux], axis=1).T, np.float32)
+
+
 @numba.njit(nogil=True, cache=True, inline="always")
 def _entry(mu):  # pragma: no cover (compiled)
-    """The material tables' entry of a cosine in [0, 1]."""
-    return np.int32(min(mu, np.float32(1.0)) * np.float32(TABLE_SIZE - 1) + np.float32(0.5))
+    """The material tables' entry of a cosine, clipped to [0, 1] (NaN, from a pair the caller masks, reads entry 0)."""
+    place = mu * np.float32(TABLE_SIZE - 1) + np.float32(0.5)
+    place = place if place >= np.float32(0.0) else np.float32(0.0)
+    return np.int32(min(place, np.float32(TABLE_SIZE - 1)))
 
 
-@numba.njit(nogil=True, cache=True, inline="always")
-def _glossy(nx, ny, nz, ax, ay, az, bx, by, bz, cos_a, cos_b, energy, alpha, ior):  # pragma: no cover (compiled)
-    """The lobe f(a, b) / E_ss(cos_b) of a surface of normal n between unit directions a and b (0 for IOR 1)."""
-    if ior == 1.0:
-        return np.float32(0.0)
-    hx, hy, hz = ax + bx, ay + by, az + bz
-    length = np.sqrt(hx * hx + hy * hy + hz * hz)
-    if length <= np.float32(1e-6):
-        return np.float32(0.0)
-    cos_h = (nx * hx + ny * hy + nz * hz) / length
-    cos_bh = (bx * hx + by * hy + bz * hz) / length
-    if cos_h <= 0 or cos_bh <= 0:
-        return np.float32(0.0)
-    return np.float32(glossy_brdf(cos_h, cos_a, cos_b, cos_bh, alpha, ior)) * energy[_entry(cos_b)]
+@numba.njit(nogil=True, cache=True, inline="always", error_model="numpy")
+def _glossy(cos_h, cos_a, cos_b, cos_bh, length, energy, alpha, ior):  # pragma: no cover (compiled)
+    """The lobe f(a, b) M(cos_b) of a surface between unit directions a and b at cos_a, cos_b to its normal, from
+    their unnormalised half vector (its cosines cos_h to the normal and cos_bh to b, both times `length`, its
+    length); 0 outside the lobe's domain or for IOR 1. float32 and branch-free (a select), so pair loops vectorise."""
+    cos_h, cos_bh = cos_h / length, cos_bh / length
+    inside = (ior != np.float32(1.0)) & (cos_a > 0) & (cos_b > 0) & (length > np.float32(1e-6)) & (cos_h > 0) & (
+        cos_bh > 0)
+    value = glossy_brdf(cos_h, cos_a, cos_b, cos_bh, alpha, ior, np.float32) * energy[_entry(cos_b)]
+    return value if inside else np.float32(0.0)
 
 
-@numba.njit(nogil=True, cache=True)
-def _shadow_rays(points, point_normals, eyes, point_depth, row_offset, interleave, positions, normals, incoming, flux,
-                 coloured_flux, starts, clamp2, offset, base, energy, alpha, ior, roulette_below,
-                 seed):  # pragma: no cover (compiled)
-    """Every (gather point, light of its subset) pair that faces each other: the cell, the unshadowed
-    contribution (irradiance RGB, glossy term RGB) and the shadow ray (origin off the surface, direction to
-    the light: t in [0, 1)). A light at y lit from w_i sends the point x the irradiance
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _shadow_rays(points, point_normals, eyes, point_depth, row_offset, interleave, rows_of_lights, starts, clamp2,
+                 offset, base, energy, alpha, ior, roulette_below, seed):  # pragma: no cover (compiled)
+    """Every (gather point, light of its subset) pair that faces each other and the roulette keeps: the cell, the
+    contribution (irradiance RGB, glossy term RGB) and the shadow ray (origin off the surface, direction to the
+    light: t in [0, 1)). A light at y lit from w_i sends the point x the irradiance
     Phi f_y(w_i, y->x) cos_y cos_x / max(r^2, clamp^2), f = base rho / pi + lobe (material.py); x's own lobe
-    reflects pi f_x(x->y, x->eye) times that towards the eye (the glossy term)."""
+    reflects pi f_x(x->y, x->eye) times that towards the eye (the glossy term). `rows_of_lights`: `light_rows`.
+    Each point's pairs are first valued all at once (`_value_pairs`, float32 on SIMD lanes), then the roulette
+    picks and the kept pairs are written out."""
     rows, columns = point_depth.shape
     largest = 0
     for group in range(len(starts) - 1):
@@ -83,107 +92,113 @@ def _shadow_rays(points, point_normals, eyes, point_depth, row_offset, interleav
     contributions = np.empty((most, CHANNELS), np.float32)
     origins = np.empty((most, 3), np.float32)
     directions = np.empty((most, 3), np.float32)
-    lights = np.empty(most, np.int64)
-    # Per pair until the roulette has chosen: the irradiance in float64 (the glossy term multiplies it before it is
-    # rounded), the distance to the light (`directions` holds the unit direction) and the roulette's weight.
-    received = np.empty((most, 3), np.float64)
-    distances = np.empty(most, np.float32)
-    weights = np.empty(most, np.float32)
+    pairs = np.empty((PAIR_ROWS, largest), np.float32)  # one point's pairs (`_value_pairs`)
     n = 0
-    inverse_pi, pi = np.float32(1.0 / math.pi), np.float32(math.pi)
+    pi = np.float32(math.pi)
     for i in range(rows):
         for k in range(columns):
             z = point_depth[i, k]
             if not np.isfinite(z):
                 continue
             group = ((i + row_offset) % interleave) * interleave + k % interleave
+            first, count = starts[group], starts[group + 1] - starts[group]
             lift = offset * (np.float32(1.0) + z)
             nx, ny, nz = point_normals[i, k, 0], point_normals[i, k, 1], point_normals[i, k, 2]
             ex, ey, ez = eyes[i, k, 0], eyes[i, k, 1], eyes[i, k, 2]
             cos_eye = nx * ex + ny * ey + nz * ez
             px, py, pz = points[i, k, 0] + nx * lift, points[i, k, 1] + ny * lift, points[i, k, 2] + nz * lift
-            first = n
-            for j in range(starts[group], starts[group + 1]):
-                dx, dy, dz = positions[j, 0] - px, positions[j, 1] - py, positions[j, 2] - pz
-                r2 = dx * dx + dy * dy + dz * dz
-                if r2 <= np.float32(0.0):
+            _value_pairs(px, py, pz, nx, ny, nz, rows_of_lights, first, count, clamp2, base, energy, alpha, ior, pairs)
+            cell = i * columns + k
+            # Russian roulette: a pair bringing c < roulette_below times the point's mean keeps its shadow ray with
+            # probability c / (roulette_below mean) and then counts 1 / p times (unbiased); the draw hashes
+            # (seed, cell, light), so a still camera draws alike.
+            total, facing = np.float32(0.0), 0
+            for q in range(count):
+                if pairs[_GEOMETRY, q] > 0:
+                    total += pairs[_VALUE, q]
+                    facing += 1
+            if total <= 0:
+                continue  # nothing to bring: no rays
+            threshold = roulette_below * total / np.float32(facing)
+            for q in range(count):
+                if pairs[_GEOMETRY, q] <= 0:
                     continue
-                r = np.sqrt(r2)
-                dx, dy, dz = dx / r, dy / r, dz / r
-                cos_x = nx * dx + ny * dy + nz * dz
-                mx, my, mz = normals[j, 0], normals[j, 1], normals[j, 2]
-                cos_j = -(mx * dx + my * dy + mz * dz)
-                if cos_x <= 0 or cos_j <= 0:
-                    continue
-                geometry = cos_x * cos_j / max(r2, clamp2)
-                wx, wy, wz = incoming[j, 0], incoming[j, 1], incoming[j, 2]
-                cos_in = mx * wx + my * wy + mz * wz
-                lobe = 0.0
-                if cos_in > 0:
-                    widened = widened_alpha(alpha, cos_x)
-                    lobe = _glossy(mx, my, mz, wx, wy, wz, -dx, -dy, -dz, cos_in, cos_j, energy, widened, ior)
-                diffuse = base[_entry(cos_j)] * inverse_pi
-                cells[n] = i * columns + k
+                value, weight = pairs[_VALUE, q], np.float32(1.0)
+                if roulette_below > 0 and value < threshold:
+                    chance = value / threshold
+                    if _hash_uniform(seed, (i + row_offset) * columns + k, first + q) >= chance:
+                        continue
+                    weight = np.float32(1.0) / chance
+                j = first + q
+                dx, dy, dz = rows_of_lights[0, j] - px, rows_of_lights[1, j] - py, rows_of_lights[2, j] - pz
+                r = np.sqrt(dx * dx + dy * dy + dz * dz)
+                # x's own lobe only for the pairs kept: about two thirds are dropped.
+                seen = np.float32(0.0)
+                if cos_eye > 0:
+                    cos_x = (nx * dx + ny * dy + nz * dz) / r
+                    hx, hy, hz = dx / r + ex, dy / r + ey, dz / r + ez
+                    length = np.sqrt(hx * hx + hy * hy + hz * hz)
+                    seen = pi * _glossy(nx * hx + ny * hy + nz * hz, cos_x, cos_eye, ex * hx + ey * hy + ez * hz,
+                                        length, energy, alpha, ior)
+                cells[n] = cell
                 for c in range(3):
-                    received[n, c] = (coloured_flux[j, c] * diffuse + flux[j, c] * lobe) * geometry
-                    contributions[n, c] = received[n, c]
+                    received = pairs[_RECEIVED + c, q]
+                    contributions[n, c] = received * weight
+                    contributions[n, 3 + c] = received * seen * weight
                 origins[n, 0], origins[n, 1], origins[n, 2] = px, py, pz
                 directions[n, 0], directions[n, 1], directions[n, 2] = dx, dy, dz
-                distances[n] = r
-                lights[n] = j
                 n += 1
-            n = _roulette(first, n, (i + row_offset) * columns + k, seed, roulette_below, lights, cells, contributions,
-                          origins, directions, received, distances, weights)
-            # The glossy term only for the pairs the roulette kept (it does not enter the roulette's choice): x's
-            # lobe is the dearest part of a pair, and about two thirds of the pairs are dropped.
-            for q in range(first, n):
-                dx, dy, dz = directions[q, 0], directions[q, 1], directions[q, 2]
-                seen = 0.0
-                if cos_eye > 0:
-                    cos_x = nx * dx + ny * dy + nz * dz
-                    seen = pi * _glossy(nx, ny, nz, dx, dy, dz, ex, ey, ez, cos_x, cos_eye, energy, alpha, ior)
-                weight = weights[q]
-                for c in range(3):
-                    contributions[q, c] = np.float32(received[q, c]) * weight
-                    contributions[q, 3 + c] = np.float32(received[q, c] * seen) * weight
-                r = distances[q]
-                directions[q, 0], directions[q, 1], directions[q, 2] = dx * r, dy * r, dz * r
     return cells[:n], contributions[:n], origins[:n], directions[:n]
 
 
-@numba.njit(nogil=True, cache=True)
-def _roulette(first, end, cell, seed, roulette_below, lights, cells, contributions, origins, directions, received,
-              distances, weights):  # pragma: no cover (compiled)
-    """Russian roulette on the pairs first..end of one gather point: a pair bringing c < roulette_below times the
-    point's mean keeps its shadow ray with probability c / (roulette_below mean) and then counts 1 / p times (an
-    unbiased estimate); the rest are dropped. The draw hashes (seed, cell, light): a still camera draws alike.
-    Returns the new end of the kept pairs (compacted in place, each with its weight in `weights`; the caller
-    scales their contributions)."""
-    total = np.float32(0.0)
-    for q in range(first, end):
-        total += contributions[q, 0] + contributions[q, 1] + contributions[q, 2]
-    if total <= 0:
-        return first  # nothing to bring: no rays
-    if roulette_below <= 0:
-        weights[first:end] = 1.0
-        return end
-    threshold = roulette_below * total / np.float32(end - first)
-    kept = first
-    for q in range(first, end):
-        value = contributions[q, 0] + contributions[q, 1] + contributions[q, 2]
-        weight = np.float32(1.0)
-        if value < threshold:
-            chance = value / threshold
-            if _hash_uniform(seed, cell, lights[q]) >= chance:
-                continue
-            weight = np.float32(1.0) / chance
-        cells[kept], distances[kept], weights[kept] = cells[q], distances[q], weight
+# Rows of `_value_pairs`' output: the geometry term cos_x cos_y / max(r^2, clamp^2) (0 where the pair does not
+# face each other), the cosine at the light, the light's lobe before its energy factor; the irradiance per channel
+# and summed over RGB.
+_GEOMETRY, _COS_LIGHT, _LOBE, _RECEIVED, _VALUE = 0, 1, 2, 3, 6
+PAIR_ROWS = 7
+
+
+@numba.njit(nogil=True, cache=True, inline="always", error_model="numpy")
+def _value_pairs(px, py, pz, nx, ny, nz, rows_of_lights, first, count, clamp2, base, energy, alpha, ior,
+                 pairs):  # pragma: no cover (compiled)
+    """Into pairs[:, :count] what lights first..first + count bring the point p of normal n (the rows above).
+    Two loops: the first is branch-free float32 arithmetic, one light per SIMD lane (its masks become selects;
+    it writes 3 rows only, as the compiler gives up vectorising when the rows read and written need more overlap
+    checks); the second reads the material tables (a table read at a computed index would keep the first from
+    vectorising: the compiler cannot tell it from the rows written)."""
+    zero = np.float32(0.0)
+    light = rows_of_lights
+    glossy = ior != np.float32(1.0)
+    for q in range(count):
+        j = first + q
+        dx, dy, dz = light[0, j] - px, light[1, j] - py, light[2, j] - pz
+        r2 = dx * dx + dy * dy + dz * dz
+        r = np.sqrt(r2)
+        dx, dy, dz = dx / r, dy / r, dz / r
+        mx, my, mz = light[3, j], light[4, j], light[5, j]
+        cos_x = nx * dx + ny * dy + nz * dz
+        cos_j = -(mx * dx + my * dy + mz * dz)
+        facing = (r2 > zero) & (cos_x > zero) & (cos_j > zero)
+        # The light's lobe from where its light came (w_i) towards x, widened as Filter Glossy does after x's bounce.
+        hx, hy, hz = light[6, j] - dx, light[7, j] - dy, light[8, j] - dz
+        length = np.sqrt(hx * hx + hy * hy + hz * hz)
+        cos_h, cos_bh = (mx * hx + my * hy + mz * hz) / length, -(dx * hx + dy * hy + dz * hz) / length
+        cos_in = light[9, j]
+        lobe = glossy_brdf(cos_h, cos_in, cos_j, cos_bh, widened_alpha(alpha, cos_x, np.float32), ior, np.float32)
+        inside = glossy & facing & (cos_in > zero) & (length > np.float32(1e-6)) & (cos_h > zero) & (cos_bh > zero)
+        pairs[_GEOMETRY, q] = cos_x * cos_j / max(r2, clamp2) if facing else zero
+        pairs[_COS_LIGHT, q] = cos_j if facing else zero
+        pairs[_LOBE, q] = lobe if inside else zero
+    inverse_pi = np.float32(1.0 / math.pi)
+    for q in range(count):
+        j, entry = first + q, _entry(pairs[_COS_LIGHT, q])
+        diffuse, lobe, geometry = base[entry] * inverse_pi, pairs[_LOBE, q] * energy[entry], pairs[_GEOMETRY, q]
+        total = zero
         for c in range(3):
-            received[kept, c] = received[q, c]
-        for axis in range(3):
-            origins[kept, axis], directions[kept, axis] = origins[q, axis], directions[q, axis]
-        kept += 1
-    return kept
+            received = (light[10 + c, j] * diffuse + light[13 + c, j] * lobe) * geometry
+            pairs[_RECEIVED + c, q] = received
+            total += received
+        pairs[_VALUE, q] = total
 
 
 @numba.njit(nogil=True, cache=True, inline="always")

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from pipeline.render.indirect.filter import similarity
+from pipeline.render.indirect.filter import plane_tolerance, similarity
 from pipeline.render.indirect.grid import CHANNELS
 
 
@@ -50,22 +50,24 @@ def upsample_blocks(combined, points, point_normals, point_depth, depth, directi
             py = origin[1] + z * direction[row, column, 1]
             pz = origin[2] + z * direction[row, column, 2]
             k0, k1, fk = lefts[block_column], rights[block_column], across[block_column]
-            w00 = (one - fi) * (one - fk) * similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i0, k0)
-            w01 = (one - fi) * fk * similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i0, k1)
-            w10 = fi * (one - fk) * similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i1, k0)
-            w11 = fi * fk * similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, i1, k1)
+            tolerance = plane_tolerance(z)
+            w00 = (one - fi) * (one - fk) * similarity(px, py, pz, nx, ny, nz, tolerance, points, point_normals, point_depth, i0, k0)
+            w01 = (one - fi) * fk * similarity(px, py, pz, nx, ny, nz, tolerance, points, point_normals, point_depth, i0, k1)
+            w10 = fi * (one - fk) * similarity(px, py, pz, nx, ny, nz, tolerance, points, point_normals, point_depth, i1, k0)
+            w11 = fi * fk * similarity(px, py, pz, nx, ny, nz, tolerance, points, point_normals, point_depth, i1, k1)
             total = w00 + w01 + w10 + w11
             if total > np.float32(1e-6):
+                w00, w01, w10, w11 = w00 / total, w01 / total, w10 / total, w11 / total
                 for c in range(CHANNELS):
                     out[local_row, block_column, c] = (w00 * combined[i0, k0, c] + w01 * combined[i0, k1, c]
-                                                 + w10 * combined[i1, k0, c] + w11 * combined[i1, k1, c]) / total
+                                                       + w10 * combined[i1, k0, c] + w11 * combined[i1, k1, c])
                 continue
             # None of the four is alike: the most similar of the 4 x 4 around (the same surface a cell further);
             # failing that, an orphan.
             best, best_a, best_b = np.float32(0.0), -1, -1
             for a in range(max(i0 - 1, 0), min(i0 + 3, rows)):
                 for b in range(max(k0 - 1, 0), min(k0 + 3, columns)):
-                    w = similarity(px, py, pz, nx, ny, nz, z, points, point_normals, point_depth, a, b)
+                    w = similarity(px, py, pz, nx, ny, nz, tolerance, points, point_normals, point_depth, a, b)
                     if w > best:
                         best, best_a, best_b = w, a, b
             if best_a < 0:
