@@ -18,7 +18,7 @@ import numpy as np
 
 from pipeline.config import Illumination
 from pipeline.render.embree import EmbreeMesh
-from pipeline.render.indirect.sampling import spot_pattern, table_entries, table_entry, widened_alpha
+from pipeline.render.indirect.sampling import normal_frame, spot_pattern, table_entries, table_entry, widened_alpha
 from pipeline.render.lighting import SurfaceColors, srgb_to_linear
 from pipeline.render.material import glossy_brdf, reflection_tables
 
@@ -172,13 +172,8 @@ def _scatter_paths(normals, incoming, rho, numbers, albedo, energy, alpha, ior):
 
 @numba.njit(nogil=True, cache=True, inline="always")
 def _about_normal(cos_theta, turn, nx, ny, nz):  # pragma: no cover (compiled)
-    """The unit direction at cos_theta to the normal n, at azimuth 2 pi turn about it (`sampling._about_normals`'
-    frame: the tangent from the x axis, or the y axis for a normal near x)."""
-    hx, hy, hz = (0.0, 1.0, 0.0) if abs(nx) > 0.9 else (1.0, 0.0, 0.0)
-    tx, ty, tz = hy * nz - hz * ny, hz * nx - hx * nz, hx * ny - hy * nx
-    length = math.sqrt(tx * tx + ty * ty + tz * tz)
-    tx, ty, tz = tx / length, ty / length, tz / length
-    bx, by, bz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
+    """The unit direction at cos_theta to the normal n, at azimuth 2 pi turn about it (in `normal_frame`)."""
+    tx, ty, tz, bx, by, bz = normal_frame(nx, ny, nz)
     radius, phi = math.sqrt(max(0.0, 1.0 - cos_theta * cos_theta)), 2.0 * math.pi * turn
     a, b = radius * math.cos(phi), radius * math.sin(phi)
     return a * tx + b * bx + cos_theta * nx, a * ty + b * by + cos_theta * ny, a * tz + b * bz + cos_theta * nz

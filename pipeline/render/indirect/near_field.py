@@ -17,7 +17,8 @@ from pipeline.config import Illumination
 from pipeline.render.embree import EmbreeMesh
 from pipeline.render.indirect.grid import CHANNELS
 from pipeline.render.indirect.light_paths import SURFACE_OFFSET
-from pipeline.render.indirect.sampling import SEED_STREAM, local_directions, table_entry, widened_alpha
+from pipeline.render.indirect.sampling import (SEED_STREAM, local_directions, normal_frame, table_entry,
+                                               widened_alpha)
 from pipeline.render.lighting import SurfaceColors, cone_falloff, radiant_intensity, srgb_to_linear
 from pipeline.render.material import ReflectionTables, glossy_brdf
 
@@ -72,7 +73,7 @@ def add_near_field(mesh: EmbreeMesh, colors: SurfaceColors, illumination: Illumi
 @numba.njit(nogil=True, cache=True)
 def _near_rays(points, normals, depth, local, camera, offset):  # pragma: no cover (compiled)
     """The near-field rays of every gather point with a surface: its cell (flat index), and per ray the origin off
-    the surface and the direction `local` turned into the frame of its normal (float64, as `_about_normals`)."""
+    the surface and the direction `local` turned into the frame of its normal (float64, `normal_frame`)."""
     columns, rays = depth.shape[1], local.shape[2]
     cells = np.flatnonzero(np.isfinite(depth.ravel()))
     origins = np.empty((len(cells) * rays, 3), np.float64)
@@ -81,11 +82,7 @@ def _near_rays(points, normals, depth, local, camera, offset):  # pragma: no cov
     for m in range(len(cells)):
         i, k = cells[m] // columns, cells[m] % columns
         nx, ny, nz = np.float64(normals[i, k, 0]), np.float64(normals[i, k, 1]), np.float64(normals[i, k, 2])
-        hx, hy, hz = (0.0, 1.0, 0.0) if abs(nx) > 0.9 else (1.0, 0.0, 0.0)
-        tx, ty, tz = hy * nz - hz * ny, hz * nx - hx * nz, hx * ny - hy * nx
-        length = np.sqrt(tx * tx + ty * ty + tz * tz)
-        tx, ty, tz = tx / length, ty / length, tz / length
-        bx, by, bz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
+        tx, ty, tz, bx, by, bz = normal_frame(nx, ny, nz)
         for axis in range(3):
             x[axis] = points[i, k, axis]
             gap[axis] = x[axis] - camera[axis]

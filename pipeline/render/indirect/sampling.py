@@ -68,26 +68,15 @@ def table_entry(mu):  # pragma: no cover (compiled)
     return np.int64(np.rint(min(max(mu, 0.0), 1.0) * (TABLE_SIZE - 1)))
 
 
-def cosine_directions(normals: np.ndarray, numbers: np.ndarray) -> np.ndarray:
-    """Unit directions (n, 3) distributed as cos(theta) about `normals`, from uniform `numbers` (n, 2)."""
-    return _about_normals(np.sqrt(np.maximum(0.0, 1.0 - numbers[:, 0])), numbers[:, 1], normals)
-
-
-def ggx_half_vectors(normals: np.ndarray, numbers: np.ndarray, alpha: float) -> np.ndarray:
-    """Unit half vectors (n, 3) distributed as D(h) cos(theta_h) of GGX about `normals`, from `numbers` (n, 2)."""
-    u = numbers[:, 0]
-    return _about_normals(np.sqrt((1.0 - u) / (1.0 + (alpha * alpha - 1.0) * u)), numbers[:, 1], normals)
-
-
-def _about_normals(cos_theta: np.ndarray, turn: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """Unit directions at cos_theta (n,) to `normals` (n, 3), at azimuth 2 pi turn (n,) about them."""
-    local = local_directions(cos_theta, turn)
-    normals = normals.astype(np.float64)
-    helper = np.where(np.abs(normals[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
-    tangent = np.cross(helper, normals)
-    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
-    bitangent = np.cross(normals, tangent)
-    return local[:, :1] * tangent + local[:, 1:2] * bitangent + local[:, 2:] * normals
+@numba.njit(nogil=True, cache=True, inline="always")
+def normal_frame(nx, ny, nz):  # pragma: no cover (compiled)
+    """A unit tangent and bitangent (tx, ty, tz, bx, by, bz) about the unit normal n: the tangent from the x axis,
+    or the y axis for a normal near x (the frame every sampled direction of the light is turned into)."""
+    hx, hy, hz = (0.0, 1.0, 0.0) if abs(nx) > 0.9 else (1.0, 0.0, 0.0)
+    tx, ty, tz = hy * nz - hz * ny, hz * nx - hx * nz, hx * ny - hy * nx
+    length = np.sqrt(tx * tx + ty * ty + tz * tz)
+    tx, ty, tz = tx / length, ty / length, tz / length
+    return tx, ty, tz, ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
 
 
 def local_directions(cos_theta: np.ndarray, turn: np.ndarray) -> np.ndarray:
