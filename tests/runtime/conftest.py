@@ -6,9 +6,12 @@ import pytest
 
 
 @pytest.fixture(autouse=True, scope="module")
-def _forget_tiny_table():
-    """The tiny stage's table is registered for these tests only: take it out of the registry afterwards
-    (the tiny stage registers it again whenever it runs in this process, e.g. on the inline executor)."""
+def _tiny_table():
+    """The tiny stage's table is registered for these tests only: registered before a module's tests, taken out
+    of the registry after them (a unit registers it again whenever it runs in this process, e.g. inline)."""
+    from tests.runtime.tiny_stage import register_table
+
+    register_table()
     yield
     from pipeline.store import tables
 

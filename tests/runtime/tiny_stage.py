@@ -18,12 +18,11 @@ from pipeline.store.run_folder import RunFolder
 from pipeline.runtime.stage import Stage, Unit, UnitContext, UnitResult
 
 
-def _register() -> None:
+def register_table() -> None:
+    """Register the tiny stage's table (tests/runtime/conftest.py does for the runtime tests, and each unit in
+    its own process: a table registered at import would show in other tests' registry, e.g. schemas/)."""
     register("tiny", [column("unit", pa.string(), "unit id"), column("value", pa.int64(), "a seeded draw")],
              row="one draw of one tiny unit")
-
-
-_register()
 
 
 class TinyStage(Stage):
@@ -37,7 +36,7 @@ class TinyStage(Stage):
                       key=lambda u: u.id)
 
     def run_unit(self, unit: Unit, context: UnitContext) -> UnitResult:
-        _register()  # Ray workers import this module by value: register the table there too
+        register_table()  # Ray workers import this module by value: register the table there too
         control = context.run.root / "control"
         if (control / f"{unit.id}.hang").exists():
             time.sleep(600)
