@@ -8,6 +8,7 @@ import numba
 import numpy as np
 
 from pipeline.render.indirect.grid import CHANNELS
+from pipeline.render.indirect.sampling import normal_frame
 
 # Geometric weights of the filter: cos^8 of the angle between normals (fixed in `similarity`) times
 # 1 - (plane distance / tolerance)^2, the tolerance being this fraction of the depth.
@@ -83,13 +84,7 @@ def _block_sums(gathered, points, point_normals, point_depth, i, k, top, left, i
     depth = point_depth[i, k]
     px, py, pz = points[i, k, 0], points[i, k, 1], points[i, k, 2]
     nx, ny, nz = point_normals[i, k, 0], point_normals[i, k, 1], point_normals[i, k, 2]
-    # Two unit tangents of the point's surface.
-    hx, hy, hz = (np.float32(0.0), np.float32(1.0), np.float32(0.0)) if abs(nx) > 0.9 else (
-        np.float32(1.0), np.float32(0.0), np.float32(0.0))
-    tx, ty, tz = hy * nz - hz * ny, hz * nx - hx * nz, hx * ny - hy * nx
-    length = np.sqrt(tx * tx + ty * ty + tz * tz)
-    tx, ty, tz = tx / length, ty / length, tz / length
-    bx, by, bz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
+    tx, ty, tz, bx, by, bz = normal_frame(nx, ny, nz, np.float32)  # two unit tangents of the point's surface
     reach = np.float32(FILTER_REACH) * depth
     tolerance = plane_tolerance(depth)
     moments[:] = 0.0

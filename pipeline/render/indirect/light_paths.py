@@ -173,7 +173,7 @@ def _scatter_paths(normals, incoming, rho, numbers, albedo, energy, alpha, ior):
 @numba.njit(nogil=True, cache=True, inline="always")
 def _about_normal(cos_theta, turn, nx, ny, nz):  # pragma: no cover (compiled)
     """The unit direction at cos_theta to the normal n, at azimuth 2 pi turn about it (in `normal_frame`)."""
-    tx, ty, tz, bx, by, bz = normal_frame(nx, ny, nz)
+    tx, ty, tz, bx, by, bz = normal_frame(nx, ny, nz, np.float64)
     radius, phi = math.sqrt(max(0.0, 1.0 - cos_theta * cos_theta)), 2.0 * math.pi * turn
     a, b = radius * math.cos(phi), radius * math.sin(phi)
     return a * tx + b * bx + cos_theta * nx, a * ty + b * by + cos_theta * ny, a * tz + b * bz + cos_theta * nz

@@ -82,7 +82,7 @@ def _near_rays(points, normals, depth, local, camera, offset):  # pragma: no cov
     for m in range(len(cells)):
         i, k = cells[m] // columns, cells[m] % columns
         nx, ny, nz = np.float64(normals[i, k, 0]), np.float64(normals[i, k, 1]), np.float64(normals[i, k, 2])
-        tx, ty, tz, bx, by, bz = normal_frame(nx, ny, nz)
+        tx, ty, tz, bx, by, bz = normal_frame(nx, ny, nz, np.float64)
         for axis in range(3):
             x[axis] = points[i, k, axis]
             gap[axis] = x[axis] - camera[axis]

@@ -69,10 +69,12 @@ def table_entry(mu):  # pragma: no cover (compiled)
 
 
 @numba.njit(nogil=True, cache=True, inline="always")
-def normal_frame(nx, ny, nz):  # pragma: no cover (compiled)
+def normal_frame(nx, ny, nz, real):  # pragma: no cover (compiled)
     """A unit tangent and bitangent (tx, ty, tz, bx, by, bz) about the unit normal n: the tangent from the x axis,
-    or the y axis for a normal near x (the frame every sampled direction of the light is turned into)."""
-    hx, hy, hz = (0.0, 1.0, 0.0) if abs(nx) > 0.9 else (1.0, 0.0, 0.0)
+    or the y axis for a normal near x (the frame every sampled direction of the light, and the filter's plane fit,
+    is turned into), in the float type `real` (np.float32 or np.float64, as `material.glossy_brdf`)."""
+    zero, one = real(0.0), real(1.0)
+    hx, hy, hz = (zero, one, zero) if abs(nx) > 0.9 else (one, zero, zero)
     tx, ty, tz = hy * nz - hz * ny, hz * nx - hx * nz, hx * ny - hy * nx
     length = np.sqrt(tx * tx + ty * ty + tz * tz)
     tx, ty, tz = tx / length, ty / length, tz / length
