@@ -281,8 +281,8 @@ def _draw(lanes, planes, starts, order, rank, rects, nearest, pose, pixel_x, pix
         group_start = count
         for run in range(first, stop, RUN):
             run_stop = min(run + RUN, stop)
-            if _boxes_hidden(geometry, run - first, run_stop - first, rect, row_start, row_stop, inverse_depth, tiles,
-                             dirty):
+            if _boxes_hidden(geometry, run - first, run_stop - first, drawn, first, rect, row_start, row_stop,
+                             inverse_depth, tiles, dirty):
                 continue
             for triangle in range(run, run_stop):
                 if drawn[triangle]:
@@ -306,7 +306,7 @@ def _draw(lanes, planes, starts, order, rank, rects, nearest, pose, pixel_x, pix
         _prepare(corner_batch, 0, group_stop - group_start, pose, x0, y0, fx, fy, geometry)
         for run in range(group_start, group_stop, FACING_AWAY_RUN):
             run_stop = min(run + FACING_AWAY_RUN, group_stop)
-            if _boxes_hidden(geometry, run - group_start, run_stop - group_start, rect, row_start, row_stop,
+            if _boxes_hidden(geometry, run - group_start, run_stop - group_start, drawn, -1, rect, row_start, row_stop,
                              inverse_depth, tiles, dirty):
                 continue
             for slot in range(run, run_stop):
@@ -376,15 +376,18 @@ def _prepared(geometry, slot):  # pragma: no cover (compiled)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _boxes_hidden(geometry, begin, end, rect, row_start, row_stop, inverse_depth, tiles,
+def _boxes_hidden(geometry, begin, end, drawn, first, rect, row_start, row_stop, inverse_depth, tiles,
                   dirty):  # pragma: no cover (compiled)
     """True when none of the prepared triangles in slots begin..end (drawn within their cluster's pixel
-    rectangle `rect`) can win a pixel of the band: each draws nothing (`_draw_triangle`'s early returns) or
-    the union of their pixel boxes lies behind every pixel it covers (by their nearest corner)."""
+    rectangle `rect`) can win a pixel of the band: each is drawn already (with `first` >= 0, slot s holds
+    triangle first + s, flagged in `drawn`), draws nothing (`_draw_triangle`'s early returns) or the union of
+    their pixel boxes lies behind every pixel it covers (by their nearest corner)."""
     top, bottom = row_stop, row_start - 1
     left, right = rect[3] + 1, rect[2] - 1
     closest = np.inf
     for slot in range(begin, end):
+        if first >= 0 and drawn[first + slot]:
+            continue  # a previous winner, drawn first
         a, b, c, det, box = _prepared(geometry, slot)
         if det == 0.0 or a[2] <= 0.0 and b[2] <= 0.0 and c[2] <= 0.0:
             continue  # degenerate, edge-on or behind the camera: draws nothing
