@@ -152,53 +152,87 @@ class Rasterizer:
 @numba.njit(nogil=True, cache=True, error_model="numpy")
 def _cull_clusters(low, high, pose, pixel_x, pixel_y, fx, fy, rects, nearest):  # pragma: no cover (compiled)
     """Indices of the clusters whose boxes reach into the view (in front of the camera, inside the outermost
-    pixel rays); for each, its pixel rectangle (row0, row1, col0, col1, inclusive) and nearest planar depth."""
+    pixel rays); for each, its pixel rectangle (row0, row1, col0, col1, inclusive) and nearest planar depth.
+    The boxes are taken into the camera frame CLUSTER_SIZE at a time by `_box_views`, on vector lanes."""
+    height, width = len(pixel_y), len(pixel_x)
     inside = np.empty(len(low), np.int64)
+    boxes = np.empty(6 * CLUSTER_SIZE, np.float64)  # a chunk's low and high corners, one row per coordinate
+    views = np.empty(7 * CLUSTER_SIZE, np.float64)
     count = 0
-    for cluster in range(len(low)):
-        seen, top, bottom, left, right, z_min = _box_view(low[cluster], high[cluster], pose, pixel_x, pixel_y, fx, fy)
-        if not seen:
-            continue
-        rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3] = top, bottom, left, right
-        nearest[cluster] = z_min
-        inside[count] = cluster
-        count += 1
+    for chunk in range(0, len(low), CLUSTER_SIZE):
+        size = min(CLUSTER_SIZE, len(low) - chunk)
+        for slot in range(size):
+            for k in range(3):
+                boxes[k * CLUSTER_SIZE + slot] = low[chunk + slot, k]
+                boxes[(3 + k) * CLUSTER_SIZE + slot] = high[chunk + slot, k]
+        _box_views(boxes, size, pose, pixel_x[0], pixel_x[-1], pixel_y[0], pixel_y[-1], fx, fy, views)
+        for slot in range(size):
+            z_min, z_max, outside = views[slot], views[CLUSTER_SIZE + slot], views[2 * CLUSTER_SIZE + slot]
+            if z_max <= 0.0 or outside != 0.0:
+                continue
+            cluster = chunk + slot
+            if z_min <= _BEHIND:  # the box reaches the camera plane: it may cover any pixel
+                top, bottom, left, right, z_min = 0, height - 1, 0, width - 1, max(z_min, 0.0)
+            else:
+                top = max(int(np.floor(views[5 * CLUSTER_SIZE + slot])), 0)
+                bottom = min(int(np.ceil(views[6 * CLUSTER_SIZE + slot])), height - 1)
+                left = max(int(np.floor(views[3 * CLUSTER_SIZE + slot])), 0)
+                right = min(int(np.ceil(views[4 * CLUSTER_SIZE + slot])), width - 1)
+                if top > bottom or left > right:
+                    continue
+            rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3] = top, bottom, left, right
+            nearest[cluster] = z_min
+            inside[count] = cluster
+            count += 1
     return inside[:count]
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _box_view(low, high, pose, pixel_x, pixel_y, fx, fy):  # pragma: no cover (compiled)
-    """Whether a world-frame box reaches into the view (in front of the camera, inside the outermost pixel
-    rays), and if so its pixel rectangle (row0, row1, col0, col1, inclusive) and nearest planar depth (>= 0)."""
-    height, width = len(pixel_y), len(pixel_x)
-    x0, x1, y0, y1 = pixel_x[0], pixel_x[-1], pixel_y[0], pixel_y[-1]
+def _box_views(boxes, size, pose, x0, x1, y0, y1, fx, fy, views):  # pragma: no cover (compiled)
+    """For `size` world-frame boxes (`boxes`: rows low x, y, z, high x, y, z, CLUSTER_SIZE apart), into the rows
+    of `views`: the nearest and farthest planar depth of their corners, whether all corners lie outside one side
+    of the view (1) or not (0), and the range of the columns u and rows v of the corners in front of the camera
+    (nearer than _BEHIND: none, the range is empty). A loop without branches, which the compiler vectorises."""
+    rotation = (pose[0, 0], pose[0, 1], pose[0, 2], pose[1, 0], pose[1, 1], pose[1, 2], pose[2, 0], pose[2, 1],
+                pose[2, 2])  # read before the loop: its stores might otherwise alias the pose
+    origin = (pose[0, 3], pose[1, 3], pose[2, 3])
+    for slot in range(size):
+        view = (np.inf, -np.inf, True, True, True, True, np.inf, -np.inf, np.inf, -np.inf)
+        low = (boxes[slot] - origin[0], boxes[CLUSTER_SIZE + slot] - origin[1],
+               boxes[2 * CLUSTER_SIZE + slot] - origin[2])
+        high = (boxes[3 * CLUSTER_SIZE + slot] - origin[0], boxes[4 * CLUSTER_SIZE + slot] - origin[1],
+                boxes[5 * CLUSTER_SIZE + slot] - origin[2])
+        # The corners in the order of bits x, y, z (written out: a loop over them is neither unrolled nor vectorised).
+        view = _corner_view(view, low[0], low[1], low[2], rotation, x0, x1, y0, y1, fx, fy)
+        view = _corner_view(view, high[0], low[1], low[2], rotation, x0, x1, y0, y1, fx, fy)
+        view = _corner_view(view, low[0], high[1], low[2], rotation, x0, x1, y0, y1, fx, fy)
+        view = _corner_view(view, high[0], high[1], low[2], rotation, x0, x1, y0, y1, fx, fy)
+        view = _corner_view(view, low[0], low[1], high[2], rotation, x0, x1, y0, y1, fx, fy)
+        view = _corner_view(view, high[0], low[1], high[2], rotation, x0, x1, y0, y1, fx, fy)
+        view = _corner_view(view, low[0], high[1], high[2], rotation, x0, x1, y0, y1, fx, fy)
+        view = _corner_view(view, high[0], high[1], high[2], rotation, x0, x1, y0, y1, fx, fy)
+        z_min, z_max, left, right, above, below, u_min, u_max, v_min, v_max = view
+        views[slot], views[CLUSTER_SIZE + slot] = z_min, z_max
+        views[2 * CLUSTER_SIZE + slot] = 1.0 if left or right or above or below else 0.0
+        views[3 * CLUSTER_SIZE + slot], views[4 * CLUSTER_SIZE + slot] = u_min, u_max
+        views[5 * CLUSTER_SIZE + slot], views[6 * CLUSTER_SIZE + slot] = v_min, v_max
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _corner_view(view, px, py, pz, rotation, x0, x1, y0, y1, fx, fy):  # pragma: no cover (compiled)
+    """`_box_views`' running view (z_min, z_max, left, right, above, below, u_min, u_max, v_min, v_max) with one
+    more corner (px, py, pz: world frame, relative to the camera centre)."""
+    z_min, z_max, left, right, above, below, u_min, u_max, v_min, v_max = view
     margin = 1e-9
-    z_min, z_max = np.inf, -np.inf
-    left = right = above = below = True  # every corner outside that side of the view
-    u_min, u_max, v_min, v_max = np.inf, -np.inf, np.inf, -np.inf
-    for corner in range(8):
-        px = high[0] if corner & 1 else low[0]
-        py = high[1] if corner & 2 else low[1]
-        pz = high[2] if corner & 4 else low[2]
-        px, py, pz = px - pose[0, 3], py - pose[1, 3], pz - pose[2, 3]
-        x = pose[0, 0] * px + pose[1, 0] * py + pose[2, 0] * pz
-        y = pose[0, 1] * px + pose[1, 1] * py + pose[2, 1] * pz
-        z = pose[0, 2] * px + pose[1, 2] * py + pose[2, 2] * pz
-        z_min, z_max = min(z_min, z), max(z_max, z)
-        left &= x < (x0 - margin) * z
-        right &= x > (x1 + margin) * z
-        above &= y < (y0 - margin) * z
-        below &= y > (y1 + margin) * z
-        if z > _BEHIND:
-            u, v = (x / z - x0) * fx, (y / z - y0) * fy
-            u_min, u_max, v_min, v_max = min(u_min, u), max(u_max, u), min(v_min, v), max(v_max, v)
-    if z_max <= 0.0 or left or right or above or below:
-        return False, 0, 0, 0, 0, 0.0
-    if z_min <= _BEHIND:  # the box reaches the camera plane: it may cover any pixel
-        return True, 0, height - 1, 0, width - 1, max(z_min, 0.0)
-    top, bottom = max(int(np.floor(v_min)), 0), min(int(np.ceil(v_max)), height - 1)
-    left_column, right_column = max(int(np.floor(u_min)), 0), min(int(np.ceil(u_max)), width - 1)
-    return top <= bottom and left_column <= right_column, top, bottom, left_column, right_column, z_min
+    x = rotation[0] * px + rotation[3] * py + rotation[6] * pz
+    y = rotation[1] * px + rotation[4] * py + rotation[7] * pz
+    z = rotation[2] * px + rotation[5] * py + rotation[8] * pz
+    u, v = (x / z - x0) * fx, (y / z - y0) * fy
+    front = z > _BEHIND
+    return (min(z_min, z), max(z_max, z), left and x < (x0 - margin) * z, right and x > (x1 + margin) * z,
+            above and y < (y0 - margin) * z, below and y > (y1 + margin) * z,
+            min(u_min, u) if front else u_min, max(u_max, u) if front else u_max,
+            min(v_min, v) if front else v_min, max(v_max, v) if front else v_max)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
@@ -466,8 +500,9 @@ def _draw_triangle(geometry, slot, triangle, rect, pixel_x, pixel_y, fx, fy, row
                    winner, tiles, dirty, starts, rank, cull):  # pragma: no cover (compiled)
     """Z-buffer one triangle (set up in column `slot` of `geometry` by `_prepare`: corners a, b, c relative to
     the camera, camera frame, det = det(a, b, c), its projection's box) into the band's pixels: it wins a pixel
-    it is nearer at, or as near as a triangle it comes before in the drawing order. With `cull`, it is first tested against the occlusion tiles (when it covers more than a few pixel
-    centres), then against the pixels of its box (when the tiles do not cull it and the box is under PIXEL_BOX).
+    it is nearer at, or as near as a triangle it comes before in the drawing order. With `cull`, it is first
+    tested against the occlusion tiles (when it covers more than a few pixel centres), then against the pixels of
+    its box (when the tiles do not cull it and the box is under PIXEL_BOX).
 
     The edge planes are scaled by the sign of det(a, b, c), so that inside means all three edge values >= 0.
     Negation is exact in floating point (x * -1 and -(x y + z) = (-x) y + (-z) bit for bit, but for the sign
