@@ -38,7 +38,9 @@ SMALL_BOX = 4  # pixels: a triangle's box of at most this many pixel centres is 
 # and 28 % fewer pixel tests on the bench's consecutive poses, while a larger box is rarely behind)
 PIXEL_BOX = 1024
 FACING_AWAY_RUN = 4  # facing-away triangles of a cluster, consecutive, whose joint box is tested before them
-RUN = 4  # consecutive triangles of a cluster whose joint box is tested before any of them is set up
+RUN = 4  # consecutive triangles of a cluster whose joint box is tested before any of them is drawn
+GEOMETRY_ROWS = 14  # numbers `_prepare` sets up per triangle
+LANE_BLOCK = 9 * CLUSTER_SIZE  # a cluster's corners in `ClusteredMesh.lanes`
 _BEHIND = 1e-6  # metres: a cluster corner nearer than this to the camera plane makes the cluster cover the image
 
 
@@ -52,8 +54,9 @@ class ClusteredMesh:
         planes: (F, 4) float32 plane of each triangle: N and N . v0, N = (v1 - v0) x (v2 - v0) (which side
             of it a camera lies on tells whether the triangle faces it, before its corners are transformed).
         low, high: (C, 3) float64 bounding boxes of the clusters.
-        run_centres, run_extents: (R, 3) float64 centre and half size of the bounding box of each run of RUN
-            consecutive triangles (a cluster holds whole runs).
+        lanes: (C LANE_BLOCK,) float32 the corners again, cluster by cluster, in 9 rows of CLUSTER_SIZE (x of
+            the first corners, their y, z, then the second's, the third's; a last short cluster padded), so that
+            the camera transform and projection of a cluster's triangles run several at a time (`_prepare`).
     """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
@@ -68,11 +71,9 @@ class ClusteredMesh:
         self.starts = np.append(np.arange(0, len(faces), CLUSTER_SIZE), len(faces)).astype(np.int64)
         self.low = np.minimum.reduceat(self.corners.min(axis=1), self.starts[:-1]).astype(np.float64)
         self.high = np.maximum.reduceat(self.corners.max(axis=1), self.starts[:-1]).astype(np.float64)
-        run_starts = np.arange(0, len(faces), RUN)
-        run_low = np.minimum.reduceat(self.corners.min(axis=1), run_starts).astype(np.float64)
-        run_high = np.maximum.reduceat(self.corners.max(axis=1), run_starts).astype(np.float64)
-        self.run_centres = (run_low + run_high) / 2
-        self.run_extents = (run_high - run_low) / 2
+        padded = np.zeros((len(self.starts) - 1) * CLUSTER_SIZE * 9, np.float32)
+        padded[:self.corners.size] = self.corners.ravel()
+        self.lanes = np.ascontiguousarray(padded.reshape(-1, CLUSTER_SIZE, 9).transpose(0, 2, 1)).ravel()
 
 
 def _morton_codes(points: np.ndarray) -> np.ndarray:
@@ -133,9 +134,9 @@ class Rasterizer:
             self._scratch[band] = (np.empty(shape, np.float32), np.empty(shape, np.bool_),
                                    np.empty(len(self.mesh.corners), np.int64), np.empty_like(self.rects[:, :2]),
                                    np.empty((rows.stop - rows.start) * len(self.pixel_x), np.int64),
-                                   np.zeros(len(self.mesh.corners), np.bool_))
-        _draw(self.mesh.corners, self.mesh.planes, self.mesh.starts, self.mesh.run_centres, self.mesh.run_extents,
-              self.order, self.rank, self.rects, self.nearest,
+                                   np.zeros(len(self.mesh.corners), np.bool_),
+                                   np.empty(LANE_BLOCK, np.float32), np.empty(GEOMETRY_ROWS * CLUSTER_SIZE, np.float64))
+        _draw(self.mesh.lanes, self.mesh.planes, self.mesh.starts, self.order, self.rank, self.rects, self.nearest,
               np.ascontiguousarray(camera_to_world, np.float64), self.pixel_x, self.pixel_y, *self.focal, rows.start,
               rows.stop, self.inverse_depth, self.winner, *self._scratch[band])
 
@@ -151,53 +152,87 @@ class Rasterizer:
 @numba.njit(nogil=True, cache=True, error_model="numpy")
 def _cull_clusters(low, high, pose, pixel_x, pixel_y, fx, fy, rects, nearest):  # pragma: no cover (compiled)
     """Indices of the clusters whose boxes reach into the view (in front of the camera, inside the outermost
-    pixel rays); for each, its pixel rectangle (row0, row1, col0, col1, inclusive) and nearest planar depth."""
+    pixel rays); for each, its pixel rectangle (row0, row1, col0, col1, inclusive) and nearest planar depth.
+    The boxes are taken into the camera frame CLUSTER_SIZE at a time by `_box_views`, on vector lanes."""
+    height, width = len(pixel_y), len(pixel_x)
     inside = np.empty(len(low), np.int64)
+    boxes = np.empty(6 * CLUSTER_SIZE, np.float64)  # a chunk's low and high corners, one row per coordinate
+    views = np.empty(7 * CLUSTER_SIZE, np.float64)
     count = 0
-    for cluster in range(len(low)):
-        seen, top, bottom, left, right, z_min = _box_view(low[cluster], high[cluster], pose, pixel_x, pixel_y, fx, fy)
-        if not seen:
-            continue
-        rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3] = top, bottom, left, right
-        nearest[cluster] = z_min
-        inside[count] = cluster
-        count += 1
+    for chunk in range(0, len(low), CLUSTER_SIZE):
+        size = min(CLUSTER_SIZE, len(low) - chunk)
+        for slot in range(size):
+            for k in range(3):
+                boxes[k * CLUSTER_SIZE + slot] = low[chunk + slot, k]
+                boxes[(3 + k) * CLUSTER_SIZE + slot] = high[chunk + slot, k]
+        _box_views(boxes, size, pose, pixel_x[0], pixel_x[-1], pixel_y[0], pixel_y[-1], fx, fy, views)
+        for slot in range(size):
+            z_min, z_max, outside = views[slot], views[CLUSTER_SIZE + slot], views[2 * CLUSTER_SIZE + slot]
+            if z_max <= 0.0 or outside != 0.0:
+                continue
+            cluster = chunk + slot
+            if z_min <= _BEHIND:  # the box reaches the camera plane: it may cover any pixel
+                top, bottom, left, right, z_min = 0, height - 1, 0, width - 1, max(z_min, 0.0)
+            else:
+                top = max(int(np.floor(views[5 * CLUSTER_SIZE + slot])), 0)
+                bottom = min(int(np.ceil(views[6 * CLUSTER_SIZE + slot])), height - 1)
+                left = max(int(np.floor(views[3 * CLUSTER_SIZE + slot])), 0)
+                right = min(int(np.ceil(views[4 * CLUSTER_SIZE + slot])), width - 1)
+                if top > bottom or left > right:
+                    continue
+            rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3] = top, bottom, left, right
+            nearest[cluster] = z_min
+            inside[count] = cluster
+            count += 1
     return inside[:count]
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _box_view(low, high, pose, pixel_x, pixel_y, fx, fy):  # pragma: no cover (compiled)
-    """Whether a world-frame box reaches into the view (in front of the camera, inside the outermost pixel
-    rays), and if so its pixel rectangle (row0, row1, col0, col1, inclusive) and nearest planar depth (>= 0)."""
-    height, width = len(pixel_y), len(pixel_x)
-    x0, x1, y0, y1 = pixel_x[0], pixel_x[-1], pixel_y[0], pixel_y[-1]
+def _box_views(boxes, size, pose, x0, x1, y0, y1, fx, fy, views):  # pragma: no cover (compiled)
+    """For `size` world-frame boxes (`boxes`: rows low x, y, z, high x, y, z, CLUSTER_SIZE apart), into the rows
+    of `views`: the nearest and farthest planar depth of their corners, whether all corners lie outside one side
+    of the view (1) or not (0), and the range of the columns u and rows v of the corners in front of the camera
+    (nearer than _BEHIND: none, the range is empty). A loop without branches, which the compiler vectorises."""
+    rotation = (pose[0, 0], pose[0, 1], pose[0, 2], pose[1, 0], pose[1, 1], pose[1, 2], pose[2, 0], pose[2, 1],
+                pose[2, 2])  # read before the loop: its stores might otherwise alias the pose
+    origin = (pose[0, 3], pose[1, 3], pose[2, 3])
+    for slot in range(size):
+        view = (np.inf, -np.inf, True, True, True, True, np.inf, -np.inf, np.inf, -np.inf)
+        low = (boxes[slot] - origin[0], boxes[CLUSTER_SIZE + slot] - origin[1],
+               boxes[2 * CLUSTER_SIZE + slot] - origin[2])
+        high = (boxes[3 * CLUSTER_SIZE + slot] - origin[0], boxes[4 * CLUSTER_SIZE + slot] - origin[1],
+                boxes[5 * CLUSTER_SIZE + slot] - origin[2])
+        # The corners in the order of bits x, y, z (written out: a loop over them is neither unrolled nor vectorised).
+        view = _corner_view(view, low[0], low[1], low[2], rotation, x0, x1, y0, y1, fx, fy)
+        view = _corner_view(view, high[0], low[1], low[2], rotation, x0, x1, y0, y1, fx, fy)
+        view = _corner_view(view, low[0], high[1], low[2], rotation, x0, x1, y0, y1, fx, fy)
+        view = _corner_view(view, high[0], high[1], low[2], rotation, x0, x1, y0, y1, fx, fy)
+        view = _corner_view(view, low[0], low[1], high[2], rotation, x0, x1, y0, y1, fx, fy)
+        view = _corner_view(view, high[0], low[1], high[2], rotation, x0, x1, y0, y1, fx, fy)
+        view = _corner_view(view, low[0], high[1], high[2], rotation, x0, x1, y0, y1, fx, fy)
+        view = _corner_view(view, high[0], high[1], high[2], rotation, x0, x1, y0, y1, fx, fy)
+        z_min, z_max, left, right, above, below, u_min, u_max, v_min, v_max = view
+        views[slot], views[CLUSTER_SIZE + slot] = z_min, z_max
+        views[2 * CLUSTER_SIZE + slot] = 1.0 if left or right or above or below else 0.0
+        views[3 * CLUSTER_SIZE + slot], views[4 * CLUSTER_SIZE + slot] = u_min, u_max
+        views[5 * CLUSTER_SIZE + slot], views[6 * CLUSTER_SIZE + slot] = v_min, v_max
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _corner_view(view, px, py, pz, rotation, x0, x1, y0, y1, fx, fy):  # pragma: no cover (compiled)
+    """`_box_views`' running view (z_min, z_max, left, right, above, below, u_min, u_max, v_min, v_max) with one
+    more corner (px, py, pz: world frame, relative to the camera centre)."""
+    z_min, z_max, left, right, above, below, u_min, u_max, v_min, v_max = view
     margin = 1e-9
-    z_min, z_max = np.inf, -np.inf
-    left = right = above = below = True  # every corner outside that side of the view
-    u_min, u_max, v_min, v_max = np.inf, -np.inf, np.inf, -np.inf
-    for corner in range(8):
-        px = high[0] if corner & 1 else low[0]
-        py = high[1] if corner & 2 else low[1]
-        pz = high[2] if corner & 4 else low[2]
-        px, py, pz = px - pose[0, 3], py - pose[1, 3], pz - pose[2, 3]
-        x = pose[0, 0] * px + pose[1, 0] * py + pose[2, 0] * pz
-        y = pose[0, 1] * px + pose[1, 1] * py + pose[2, 1] * pz
-        z = pose[0, 2] * px + pose[1, 2] * py + pose[2, 2] * pz
-        z_min, z_max = min(z_min, z), max(z_max, z)
-        left &= x < (x0 - margin) * z
-        right &= x > (x1 + margin) * z
-        above &= y < (y0 - margin) * z
-        below &= y > (y1 + margin) * z
-        if z > _BEHIND:
-            u, v = (x / z - x0) * fx, (y / z - y0) * fy
-            u_min, u_max, v_min, v_max = min(u_min, u), max(u_max, u), min(v_min, v), max(v_max, v)
-    if z_max <= 0.0 or left or right or above or below:
-        return False, 0, 0, 0, 0, 0.0
-    if z_min <= _BEHIND:  # the box reaches the camera plane: it may cover any pixel
-        return True, 0, height - 1, 0, width - 1, max(z_min, 0.0)
-    top, bottom = max(int(np.floor(v_min)), 0), min(int(np.ceil(v_max)), height - 1)
-    left_column, right_column = max(int(np.floor(u_min)), 0), min(int(np.ceil(u_max)), width - 1)
-    return top <= bottom and left_column <= right_column, top, bottom, left_column, right_column, z_min
+    x = rotation[0] * px + rotation[3] * py + rotation[6] * pz
+    y = rotation[1] * px + rotation[4] * py + rotation[7] * pz
+    z = rotation[2] * px + rotation[5] * py + rotation[8] * pz
+    u, v = (x / z - x0) * fx, (y / z - y0) * fy
+    front = z > _BEHIND
+    return (min(z_min, z), max(z_max, z), left and x < (x0 - margin) * z, right and x > (x1 + margin) * z,
+            above and y < (y0 - margin) * z, below and y > (y1 + margin) * z,
+            min(u_min, u) if front else u_min, max(u_max, u) if front else u_max,
+            min(v_min, v) if front else v_min, max(v_max, v) if front else v_max)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
@@ -226,8 +261,9 @@ def _occluded(rect, nearest, row_start, row_stop, inverse_depth, tiles, dirty): 
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _draw(corners, planes, starts, run_centres, run_extents, order, rank, rects, nearest, pose, pixel_x, pixel_y, fx, fy,
-          row_start, row_stop, inverse_depth, winner, tiles, dirty, deferred, groups, hints, drawn):  # pragma: no cover (compiled)
+def _draw(lanes, planes, starts, order, rank, rects, nearest, pose, pixel_x, pixel_y, fx, fy, row_start,
+          row_stop, inverse_depth, winner, tiles, dirty, deferred, groups, hints, drawn, corner_batch,
+          geometry):  # pragma: no cover (compiled)
     """Z-buffer (by inverse planar depth 1/t, 0 = nothing) the triangles of the clusters in `order` into rows
     row_start..row_stop; `winner` gets the reordered index of the nearest triangle per pixel, or -1.
 
@@ -240,21 +276,32 @@ def _draw(corners, planes, starts, run_centres, run_extents, order, rank, rects,
     filled by its facing triangles (the sides of a box meet its front), so it is rarely behind the z-buffer,
     while the box of a few neighbouring triangles (Morton order) often is.
 
+    Triangles are set up in batches (a cluster's, a cluster's facing-away ones, CLUSTER_SIZE previous winners):
+    `_prepare` takes them all into the camera frame and projects their boxes several lanes at a time, and the
+    tests and pixel loops that follow read those numbers (the ones a triangle by itself would compute, bit for bit).
+
     Whatever the order, a pixel's winner is the nearest triangle, of equal ones the first in the drawing order
     of this frame (clusters by rank, then index: `_drawn_before`), as every draw breaks ties by that order and
     a culled triangle lies strictly behind what its pixels hold: a frame is the same whether its band was
     drawn before, from any pose, or not.
     `deferred` (one slot per triangle) and `groups` (two per cluster) are scratch space for the facing-away
-    triangles of each cluster, `hints` (one slot per pixel) for the previous winners and `drawn` (one flag per
-    triangle, all False between calls) marks them."""
+    triangles of each cluster, `hints` (one slot per pixel) for the previous winners, `drawn` (one flag per
+    triangle, all False between calls) marks them, and `corner_batch` (9 CLUSTER_SIZE) and `geometry` (GEOMETRY_ROWS
+    CLUSTER_SIZE) hold a batch's corners and set-up."""
     hint_count = _take_previous_winners(rank, row_start, row_stop, inverse_depth, winner, hints, drawn)
     tiles[:, :] = 0.0
     dirty[:, :] = False
-    for triangle in hints[:hint_count]:
-        cluster = triangle // CLUSTER_SIZE
-        rect = (rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3])
-        _set_up_and_draw(corners, triangle, pose, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
-                         winner, tiles, dirty, starts, rank, False)
+    x0, y0 = pixel_x[0], pixel_y[0]
+    for batch in range(0, hint_count, CLUSTER_SIZE):
+        batch_stop = min(batch + CLUSTER_SIZE, hint_count)
+        _gather(lanes, hints[batch:batch_stop], corner_batch)
+        _prepare(corner_batch, 0, batch_stop - batch, pose, x0, y0, fx, fy, geometry)
+        for slot in range(batch_stop - batch):
+            triangle = hints[batch + slot]
+            cluster = triangle // CLUSTER_SIZE
+            rect = (rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3])
+            _draw_triangle(geometry, slot, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop,
+                           inverse_depth, winner, tiles, dirty, starts, rank, False)
     ox, oy, oz = pose[0, 3], pose[1, 3], pose[2, 3]
     count = group_count = 0
     for cluster in order:
@@ -263,12 +310,15 @@ def _draw(corners, planes, starts, run_centres, run_extents, order, rank, rects,
             continue
         if _occluded(rect, nearest[cluster], row_start, row_stop, inverse_depth, tiles, dirty):
             continue
+        first, stop = starts[cluster], starts[cluster + 1]
+        _prepare(lanes, cluster * LANE_BLOCK, stop - first, pose, x0, y0, fx, fy, geometry)
         group_start = count
-        for run in range(starts[cluster] // RUN, -(-starts[cluster + 1] // RUN)):
-            if _run_hidden(run_centres[run], run_extents[run], rect, pose, pixel_x, pixel_y, fx, fy, row_start,
-                           row_stop, inverse_depth, tiles, dirty):
+        for run in range(first, stop, RUN):
+            run_stop = min(run + RUN, stop)
+            if _boxes_hidden(geometry, run - first, run_stop - first, drawn, first, rect, row_start, row_stop,
+                             inverse_depth, tiles, dirty):
                 continue
-            for triangle in range(run * RUN, min(run * RUN + RUN, starts[cluster + 1])):
+            for triangle in range(run, run_stop):
                 if drawn[triangle]:
                     continue
                 # Facing away when N . (v0 - o) > 0 (o: the camera centre), which is det(a, b, c) but for
@@ -277,8 +327,8 @@ def _draw(corners, planes, starts, run_centres, run_extents, order, rank, rects,
                     deferred[count] = triangle  # drawn in the second pass
                     count += 1
                     continue
-                _set_up_and_draw(corners, triangle, pose, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop,
-                                 inverse_depth, winner, tiles, dirty, starts, rank, True)
+                _draw_triangle(geometry, triangle - first, triangle, rect, pixel_x, pixel_y, fx, fy, row_start,
+                               row_stop, inverse_depth, winner, tiles, dirty, starts, rank, True)
         if count > group_start:
             groups[group_count, 0], groups[group_count, 1] = cluster, count
             group_count += 1
@@ -286,58 +336,107 @@ def _draw(corners, planes, starts, run_centres, run_extents, order, rank, rects,
     for group in range(group_count):
         cluster, group_stop = groups[group, 0], groups[group, 1]
         rect = (rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3])
+        _gather(lanes, deferred[group_start:group_stop], corner_batch)
+        _prepare(corner_batch, 0, group_stop - group_start, pose, x0, y0, fx, fy, geometry)
         for run in range(group_start, group_stop, FACING_AWAY_RUN):
             run_stop = min(run + FACING_AWAY_RUN, group_stop)
-            low_x = low_y = low_z = np.inf
-            high_x = high_y = high_z = -np.inf
-            for triangle in deferred[run:run_stop]:
-                for k in range(3):
-                    low_x, high_x = min(low_x, corners[triangle, k, 0]), max(high_x, corners[triangle, k, 0])
-                    low_y, high_y = min(low_y, corners[triangle, k, 1]), max(high_y, corners[triangle, k, 1])
-                    low_z, high_z = min(low_z, corners[triangle, k, 2]), max(high_z, corners[triangle, k, 2])
-            if _box_occluded((low_x, low_y, low_z), (high_x, high_y, high_z), rect, pose, pixel_x, pixel_y, fx, fy,
-                             row_start, row_stop, inverse_depth, tiles, dirty):
+            if _boxes_hidden(geometry, run - group_start, run_stop - group_start, drawn, -1, rect, row_start, row_stop,
+                             inverse_depth, tiles, dirty):
                 continue
-            for triangle in deferred[run:run_stop]:
-                _set_up_and_draw(corners, triangle, pose, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop,
-                                 inverse_depth, winner, tiles, dirty, starts, rank, True)
+            for slot in range(run, run_stop):
+                _draw_triangle(geometry, slot - group_start, deferred[slot], rect, pixel_x, pixel_y, fx, fy, row_start,
+                               row_stop, inverse_depth, winner, tiles, dirty, starts, rank, True)
         group_start = group_stop
     for triangle in hints[:hint_count]:
         drawn[triangle] = False
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _run_hidden(centre, extent, rect, pose, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth, tiles,
-                dirty):  # pragma: no cover (compiled)
-    """True when the world box centre +- extent (a run of triangles drawn within their cluster's pixel rectangle
-    `rect`) holds no pixel centre of the band or lies behind every pixel it covers there. The box is bounded by
-    its camera-frame bounding box (the centre rotated, the half sizes through the rotation's absolute values),
-    a sixth of `_box_view`'s work; its pixel rectangle reaches 2 SPAN_MARGIN beyond it, so it holds that of
-    each of its triangles (`_draw_triangle`) whatever the rounding (~1e-12 pixels)."""
-    px, py, pz = centre[0] - pose[0, 3], centre[1] - pose[1, 3], centre[2] - pose[2, 3]
-    x = pose[0, 0] * px + pose[1, 0] * py + pose[2, 0] * pz
-    y = pose[0, 1] * px + pose[1, 1] * py + pose[2, 1] * pz
-    z = pose[0, 2] * px + pose[1, 2] * py + pose[2, 2] * pz
-    half_x = abs(pose[0, 0]) * extent[0] + abs(pose[1, 0]) * extent[1] + abs(pose[2, 0]) * extent[2]
-    half_y = abs(pose[0, 1]) * extent[0] + abs(pose[1, 1]) * extent[1] + abs(pose[2, 1]) * extent[2]
-    half_z = abs(pose[0, 2]) * extent[0] + abs(pose[1, 2]) * extent[1] + abs(pose[2, 2]) * extent[2]
-    near, far = z - half_z, z + half_z
-    if far < -_BEHIND:
-        return True  # behind the camera, whatever the rounding (`_draw_triangle` draws nothing there)
-    if near <= _BEHIND:
-        return False  # it may cover any pixel
-    inverse_near, inverse_far = 1.0 / near, 1.0 / far
-    low_x, high_x, low_y, high_y = x - half_x, x + half_x, y - half_y, y + half_y
-    margin = 2.0 * SPAN_MARGIN
-    top = max(rect[0], row_start,
-              int(np.ceil((min(low_y * inverse_near, low_y * inverse_far) - pixel_y[0]) * fy - margin)))
-    bottom = min(rect[1], row_stop - 1,
-                 int(np.floor((max(high_y * inverse_near, high_y * inverse_far) - pixel_y[0]) * fy + margin)))
-    left = max(rect[2], int(np.ceil((min(low_x * inverse_near, low_x * inverse_far) - pixel_x[0]) * fx - margin)))
-    right = min(rect[3], int(np.floor((max(high_x * inverse_near, high_x * inverse_far) - pixel_x[0]) * fx + margin)))
-    if top > bottom or left > right:
-        return True
-    return _occluded((top, bottom, left, right), near, row_start, row_stop, inverse_depth, tiles, dirty)
+def _gather(lanes, triangles, batch):  # pragma: no cover (compiled)
+    """The corners of `triangles` (at most CLUSTER_SIZE) from `lanes` into `batch`, laid out as a cluster's."""
+    for slot in range(len(triangles)):
+        source = triangles[slot] // CLUSTER_SIZE * LANE_BLOCK + triangles[slot] % CLUSTER_SIZE
+        for row in range(9):
+            batch[row * CLUSTER_SIZE + slot] = lanes[source + row * CLUSTER_SIZE]
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _prepare(source, offset, count, pose, x0, y0, fx, fy, geometry):  # pragma: no cover (compiled)
+    """The set-up of `count` triangles whose corners lie in `source` from `offset` as a cluster's in
+    `ClusteredMesh.lanes`, into the rows of `geometry` (one column per triangle, CLUSTER_SIZE apart): the corners
+    a, b, c in the camera frame (rows 0-8), det(a, b, c) (row 9) and the projection's box (rows 10-13,
+    `_projected_box`). A loop without branches over rows a fixed distance apart, which the compiler vectorises
+    (4 triangles per instruction), computing bit for bit what a triangle set up by itself would get: the same
+    operations in the same order on each lane (no fused multiply-adds: numba does not contract)."""
+    rotation = (pose[0, 0], pose[0, 1], pose[0, 2], pose[1, 0], pose[1, 1], pose[1, 2], pose[2, 0], pose[2, 1],
+                pose[2, 2])  # read before the loop: its stores might otherwise alias the pose
+    origin = (pose[0, 3], pose[1, 3], pose[2, 3])
+    for slot in range(count):
+        a = _to_camera(source, offset + slot, rotation, origin)
+        b = _to_camera(source, offset + slot + 3 * CLUSTER_SIZE, rotation, origin)
+        c = _to_camera(source, offset + slot + 6 * CLUSTER_SIZE, rotation, origin)
+        top, bottom, left, right = _projected_box(a, b, c, x0, y0, fx, fy)
+        geometry[slot], geometry[CLUSTER_SIZE + slot], geometry[2 * CLUSTER_SIZE + slot] = a
+        geometry[3 * CLUSTER_SIZE + slot], geometry[4 * CLUSTER_SIZE + slot], geometry[5 * CLUSTER_SIZE + slot] = b
+        geometry[6 * CLUSTER_SIZE + slot], geometry[7 * CLUSTER_SIZE + slot], geometry[8 * CLUSTER_SIZE + slot] = c
+        geometry[9 * CLUSTER_SIZE + slot] = _determinant(a, b, c)
+        geometry[10 * CLUSTER_SIZE + slot], geometry[11 * CLUSTER_SIZE + slot] = top, bottom
+        geometry[12 * CLUSTER_SIZE + slot], geometry[13 * CLUSTER_SIZE + slot] = left, right
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _projected_box(a, b, c, x0, y0, fx, fy):  # pragma: no cover (compiled)
+    """The rows and columns (top, bottom, left, right, as whole floats) whose pixel centres lie within
+    SPAN_MARGIN of the bounding box of the projection of corners a, b, c (camera frame; meaningful when all
+    three lie in front of the camera: other lanes of a batch get any number). x0, y0: the first column's x / z
+    and row's y / z. The corners' projections err by ~1e-16 of themselves, far below the margin (see the spans
+    in `_draw_triangle`)."""
+    inverse_a, inverse_b, inverse_c = 1.0 / a[2], 1.0 / b[2], 1.0 / c[2]
+    ya, yb, yc = a[1] * inverse_a, b[1] * inverse_b, c[1] * inverse_c
+    xa, xb, xc = a[0] * inverse_a, b[0] * inverse_b, c[0] * inverse_c
+    return (np.ceil((min(ya, yb, yc) - y0) * fy - SPAN_MARGIN), np.floor((max(ya, yb, yc) - y0) * fy + SPAN_MARGIN),
+            np.ceil((min(xa, xb, xc) - x0) * fx - SPAN_MARGIN), np.floor((max(xa, xb, xc) - x0) * fx + SPAN_MARGIN))
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _prepared(geometry, slot):  # pragma: no cover (compiled)
+    """What `_prepare` set up in column `slot`: corners a, b, c (camera frame), det(a, b, c), the projection's box."""
+    a = (geometry[slot], geometry[CLUSTER_SIZE + slot], geometry[2 * CLUSTER_SIZE + slot])
+    b = (geometry[3 * CLUSTER_SIZE + slot], geometry[4 * CLUSTER_SIZE + slot], geometry[5 * CLUSTER_SIZE + slot])
+    c = (geometry[6 * CLUSTER_SIZE + slot], geometry[7 * CLUSTER_SIZE + slot], geometry[8 * CLUSTER_SIZE + slot])
+    box = (geometry[10 * CLUSTER_SIZE + slot], geometry[11 * CLUSTER_SIZE + slot], geometry[12 * CLUSTER_SIZE + slot],
+           geometry[13 * CLUSTER_SIZE + slot])
+    return a, b, c, geometry[9 * CLUSTER_SIZE + slot], box
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _boxes_hidden(geometry, begin, end, drawn, first, rect, row_start, row_stop, inverse_depth, tiles,
+                  dirty):  # pragma: no cover (compiled)
+    """True when none of the prepared triangles in slots begin..end (drawn within their cluster's pixel
+    rectangle `rect`) can win a pixel of the band: each is drawn already (with `first` >= 0, slot s holds
+    triangle first + s, flagged in `drawn`), draws nothing (`_draw_triangle`'s early returns) or the union of
+    their pixel boxes lies behind every pixel it covers (by their nearest corner)."""
+    top, bottom = row_stop, row_start - 1
+    left, right = rect[3] + 1, rect[2] - 1
+    closest = np.inf
+    for slot in range(begin, end):
+        if first >= 0 and drawn[first + slot]:
+            continue  # a previous winner, drawn first
+        a, b, c, det, box = _prepared(geometry, slot)
+        if det == 0.0 or a[2] <= 0.0 and b[2] <= 0.0 and c[2] <= 0.0:
+            continue  # degenerate, edge-on or behind the camera: draws nothing
+        z_min = min(a[2], b[2], c[2])
+        if z_min <= _BEHIND:
+            return False  # it may cover any pixel of the rectangle
+        slot_top, slot_bottom = max(rect[0], row_start, int(box[0])), min(rect[1], row_stop - 1, int(box[1]))
+        slot_left, slot_right = max(rect[2], int(box[2])), min(rect[3], int(box[3]))
+        if slot_top > slot_bottom or slot_left > slot_right:
+            continue  # no pixel centre
+        top, bottom = min(top, slot_top), max(bottom, slot_bottom)
+        left, right = min(left, slot_left), max(right, slot_right)
+        closest = min(closest, z_min)
+    return top > bottom or _occluded((top, bottom, left, right), closest, row_start, row_stop, inverse_depth, tiles,
+                                     dirty)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
@@ -364,31 +463,6 @@ def _take_previous_winners(rank, row_start, row_stop, inverse_depth, winner, hin
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _set_up_and_draw(corners, triangle, pose, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
-                     winner, tiles, dirty, starts, rank, cull):  # pragma: no cover (compiled)
-    """`_draw_triangle` for a triangle of the mesh: its corners taken into the camera frame as scalars (a
-    triangle's setup is a few dozen flops, and (3, 3) arrays, their row views and a call cost as much again)."""
-    a = _to_camera(corners, triangle, 0, pose)
-    b = _to_camera(corners, triangle, 1, pose)
-    c = _to_camera(corners, triangle, 2, pose)
-    _draw_triangle(a, b, c, _determinant(a, b, c), triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop,
-                   inverse_depth, winner, tiles, dirty, starts, rank, cull)
-
-
-@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _box_occluded(low, high, rect, pose, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth, tiles,
-                  dirty):  # pragma: no cover (compiled)
-    """True when the world box low..high of some of a cluster's triangles (drawn within the cluster's pixel
-    rectangle `rect`) lies outside the view or behind every pixel it covers in the band."""
-    seen, top, bottom, left, right, z_min = _box_view(low, high, pose, pixel_x, pixel_y, fx, fy)
-    top, bottom = max(top, rect[0], row_start), min(bottom, rect[1], row_stop - 1)
-    left, right = max(left, rect[2]), min(right, rect[3])
-    if not seen or top > bottom or left > right:
-        return True
-    return _occluded((top, bottom, left, right), z_min, row_start, row_stop, inverse_depth, tiles, dirty)
-
-
-@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
 def _drawn_before(triangle, other, starts, rank):  # pragma: no cover (compiled)
     """True when `triangle` comes before `other` in the drawing order (clusters by rank, then index)."""
     cluster = np.searchsorted(starts, triangle, side="right") - 1
@@ -397,14 +471,15 @@ def _drawn_before(triangle, other, starts, rank):  # pragma: no cover (compiled)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _to_camera(corners, triangle, k, pose):  # pragma: no cover (compiled)
-    """Corner k of a triangle in the camera frame, relative to the camera centre."""
-    px = np.float64(corners[triangle, k, 0]) - pose[0, 3]
-    py = np.float64(corners[triangle, k, 1]) - pose[1, 3]
-    pz = np.float64(corners[triangle, k, 2]) - pose[2, 3]
-    return (pose[0, 0] * px + pose[1, 0] * py + pose[2, 0] * pz,
-            pose[0, 1] * px + pose[1, 1] * py + pose[2, 1] * pz,
-            pose[0, 2] * px + pose[1, 2] * py + pose[2, 2] * pz)
+def _to_camera(source, index, rotation, origin):  # pragma: no cover (compiled)
+    """The corner whose x is source[index] (y and z CLUSTER_SIZE and twice that further) in the camera frame,
+    relative to the camera centre (rotation: the pose's 3 x 3 row by row, origin: its translation)."""
+    px = np.float64(source[index]) - origin[0]
+    py = np.float64(source[index + CLUSTER_SIZE]) - origin[1]
+    pz = np.float64(source[index + 2 * CLUSTER_SIZE]) - origin[2]
+    return (rotation[0] * px + rotation[3] * py + rotation[6] * pz,
+            rotation[1] * px + rotation[4] * py + rotation[7] * pz,
+            rotation[2] * px + rotation[5] * py + rotation[8] * pz)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
@@ -421,16 +496,18 @@ def _edge(p, q, sign):  # pragma: no cover (compiled)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth, winner,
-                   tiles, dirty, starts, rank, cull):  # pragma: no cover (compiled)
-    """Z-buffer one triangle (corners a, b, c relative to the camera, camera frame; det = det(a, b, c)) into
-    the band's pixels: it wins a pixel it is nearer at, or as near as a triangle it comes before in the drawing
-    order. With `cull`, it is first tested against the occlusion tiles (when it covers more than a few pixel
-    centres), then against the pixels of its box (when the tiles do not cull it and the box is under PIXEL_BOX).
+def _draw_triangle(geometry, slot, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
+                   winner, tiles, dirty, starts, rank, cull):  # pragma: no cover (compiled)
+    """Z-buffer one triangle (set up in column `slot` of `geometry` by `_prepare`: corners a, b, c relative to
+    the camera, camera frame, det = det(a, b, c), its projection's box) into the band's pixels: it wins a pixel
+    it is nearer at, or as near as a triangle it comes before in the drawing order. With `cull`, it is first
+    tested against the occlusion tiles (when it covers more than a few pixel centres), then against the pixels of
+    its box (when the tiles do not cull it and the box is under PIXEL_BOX).
 
     The edge planes are scaled by the sign of det(a, b, c), so that inside means all three edge values >= 0.
     Negation is exact in floating point (x * -1 and -(x y + z) = (-x) y + (-z) bit for bit, but for the sign
     of a zero, which no test here tells apart), so this decides exactly as testing w * sign < 0 would."""
+    a, b, c, det, projected = _prepared(geometry, slot)
     if det == 0.0:
         return  # degenerate, or seen exactly edge-on
     top, bottom = max(rect[0], row_start), min(rect[1], row_stop - 1)
@@ -439,15 +516,9 @@ def _draw_triangle(a, b, c, det, triangle, rect, pixel_x, pixel_y, fx, fy, row_s
         return  # behind the camera
     if a[2] > _BEHIND and b[2] > _BEHIND and c[2] > _BEHIND:
         # The rows and columns whose pixel centres lie within SPAN_MARGIN of the projection's bounding box
-        # (the corners' projections err by ~1e-16 of themselves, far below the margin; see the spans below):
-        # most triangles of a detailed mesh are a pixel or smaller and hold no pixel centre at all.
-        inverse_a, inverse_b, inverse_c = 1.0 / a[2], 1.0 / b[2], 1.0 / c[2]
-        ya, yb, yc = a[1] * inverse_a, b[1] * inverse_b, c[1] * inverse_c
-        xa, xb, xc = a[0] * inverse_a, b[0] * inverse_b, c[0] * inverse_c
-        top = max(top, int(np.ceil((min(ya, yb, yc) - pixel_y[0]) * fy - SPAN_MARGIN)))
-        bottom = min(bottom, int(np.floor((max(ya, yb, yc) - pixel_y[0]) * fy + SPAN_MARGIN)))
-        left = max(left, int(np.ceil((min(xa, xb, xc) - pixel_x[0]) * fx - SPAN_MARGIN)))
-        right = min(right, int(np.floor((max(xa, xb, xc) - pixel_x[0]) * fx + SPAN_MARGIN)))
+        # (`_projected_box`): most triangles of a detailed mesh are a pixel or smaller and hold no pixel centre.
+        top, bottom = max(top, int(projected[0])), min(bottom, int(projected[1]))
+        left, right = max(left, int(projected[2])), min(right, int(projected[3]))
         if top > bottom or left > right:
             return
         box = (bottom - top + 1) * (right - left + 1)

@@ -396,3 +396,47 @@ def test_triangles_just_behind_a_depth_edge_are_culled_by_their_pixels_only_when
         in_front = len(wall) + 2 * len(sheets[0])
         assert ((won >= in_front) & (won < in_front + len(sheets[0]))).sum() > 100  # the sheet just in front
         assert ((won >= len(wall)) & (won < in_front)).sum() > 200  # the other two, right of the wall's edge
+
+
+def test_cluster_lanes_hold_each_triangles_corners_in_its_clusters_block() -> None:
+    """`ClusteredMesh.lanes` (what the batched set-up reads): triangle t's corner k coordinate j at
+    (t // CLUSTER_SIZE) LANE_BLOCK + (3 k + j) CLUSTER_SIZE + t % CLUSTER_SIZE, the last short cluster padded."""
+    from pipeline.render.raster import CLUSTER_SIZE, LANE_BLOCK, ClusteredMesh
+
+    rng = np.random.default_rng(3)
+    mesh = ClusteredMesh(rng.normal(size=(90, 3)), rng.integers(0, 90, size=(2 * CLUSTER_SIZE + 5, 3)))
+    assert mesh.lanes.shape == (3 * LANE_BLOCK,) and mesh.lanes.dtype == np.float32
+    blocks = mesh.lanes.reshape(3, 3, 3, CLUSTER_SIZE)  # cluster, corner, coordinate, slot
+    triangles = np.arange(len(mesh.corners))
+    assert np.array_equal(blocks[triangles // CLUSTER_SIZE, :, :, triangles % CLUSTER_SIZE], mesh.corners)
+    assert not blocks[2, :, :, 5:].any()
+
+
+def test_a_batch_set_up_is_each_triangles_own_arithmetic_bit_for_bit() -> None:
+    """`_prepare` sets up a cluster's triangles on vector lanes: the camera-frame corners, det and projected
+    pixel box must be the numbers of the scalar formulas, in the same order (a fused multiply-add or a
+    reordering would change the last bits and, at a tie, a winner)."""
+    from pipeline.render.raster import CLUSTER_SIZE, GEOMETRY_ROWS, SPAN_MARGIN, ClusteredMesh, _prepare
+
+    rng = np.random.default_rng(5)
+    mesh = ClusteredMesh(rng.normal(size=(200, 3)) + [0.0, 0.0, 4.0], rng.integers(0, 200, size=(CLUSTER_SIZE, 3)))
+    pose = np.eye(4)
+    pose[:3, :3] = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    pose[:3, 3] = rng.normal(size=3)
+    x0, y0, fx, fy = -0.7, -0.5, 457.3, 455.9
+    geometry = np.full(GEOMETRY_ROWS * CLUSTER_SIZE, np.nan)
+    _prepare(mesh.lanes, 0, CLUSTER_SIZE - 3, pose, x0, y0, fx, fy, geometry)
+    rows = geometry.reshape(GEOMETRY_ROWS, CLUSTER_SIZE)[:, :CLUSTER_SIZE - 3]
+    relative = mesh.corners[:CLUSTER_SIZE - 3].astype(np.float64) - pose[:3, 3]  # (T, 3 corners, 3)
+    x, y, z = (pose[0, k] * relative[..., 0] + pose[1, k] * relative[..., 1] + pose[2, k] * relative[..., 2]
+               for k in range(3))
+    assert np.array_equal(rows[0:9], np.stack([x, y, z], axis=-1).reshape(-1, 9).T)
+    (ax, bx, cx), (ay, by, cy), (az, bz, cz) = x.T, y.T, z.T
+    det = ((by * cz - bz * cy) * ax + (bz * cx - bx * cz) * ay + (bx * cy - by * cx) * az)
+    assert np.array_equal(rows[9], det)
+    u, v = x * (1.0 / z), y * (1.0 / z)
+    assert np.array_equal(rows[10], np.ceil((v.min(axis=1) - y0) * fy - SPAN_MARGIN))
+    assert np.array_equal(rows[11], np.floor((v.max(axis=1) - y0) * fy + SPAN_MARGIN))
+    assert np.array_equal(rows[12], np.ceil((u.min(axis=1) - x0) * fx - SPAN_MARGIN))
+    assert np.array_equal(rows[13], np.floor((u.max(axis=1) - x0) * fx + SPAN_MARGIN))
+    assert np.isnan(geometry.reshape(GEOMETRY_ROWS, CLUSTER_SIZE)[:, CLUSTER_SIZE - 3:]).all()
