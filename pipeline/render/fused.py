@@ -86,10 +86,21 @@ class FramePass:
 
     def segments(self) -> FrameSegments:
         """The frame's segment statistics (`frame_segments` of its panoptic ids), once every band is resolved."""
-        areas = np.sum([areas for areas, _ in self._counts], axis=0)
-        boxes = np.stack([boxes for _, boxes in self._counts])
-        boxes = np.concatenate([boxes[:, :, :2].min(axis=0), boxes[:, :, 2:].max(axis=0)], axis=1)
+        (areas, boxes), *others = self._counts
+        for band_areas, band_boxes in others:  # (a compiled merge: numpy's sum, stack and reductions took ~0.25 ms)
+            _add_counts(areas, boxes, band_areas, band_boxes)
         return segments_of(areas, boxes, self.labels)
+
+
+@numba.njit(nogil=True, cache=True)
+def _add_counts(areas, boxes, band_areas, band_boxes):  # pragma: no cover (compiled)
+    """Another band's areas and boxes (`add_run`'s) into `areas` and `boxes`: sums, and the boxes' union."""
+    for label in range(len(areas)):
+        areas[label] += band_areas[label]
+        boxes[label, 0] = min(boxes[label, 0], band_boxes[label, 0])
+        boxes[label, 1] = min(boxes[label, 1], band_boxes[label, 1])
+        boxes[label, 2] = max(boxes[label, 2], band_boxes[label, 2])
+        boxes[label, 3] = max(boxes[label, 3], band_boxes[label, 3])
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
