@@ -153,10 +153,15 @@ def _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, 
     it wins (~4 pixels on a bench frame)."""
     width = len(pixel_x)
     steps = np.float32(len(encode) - 1)
-    # With `spot`, a row's albedo is written first and lit in a pass of its own from each pixel's light (0 on a
-    # miss, whose albedo 0 then encodes as the general path's black): 7.5 % less time than lighting each pixel in
-    # the first loop (bench poses, 1 thread, paired in one process).
+    # A row in passes: a loop per pixel that branches only on its winner takes each pixel's t, id and label and, with
+    # `colour`, its albedo (and light); a branch-free loop, vectorised, clips them (millimetres, void); a third
+    # blackens the colour of misses and, with `spot`, lights the rest; then the label runs are counted. Against one
+    # loop doing it all per pixel (bench poses, 1 band, 1 thread, paired in one process, median ratio per frame):
+    # depth and ids 0.67, ambient 0.89-0.93, spot 0.88 (0.95 against a loop of its own for the light alone).
+    depths = np.empty(width, np.float32)
+    row_labels = np.empty(width, dense_of_face.dtype)
     lights = np.zeros(width if spot else 1, np.float32)
+    black = encode[0] if spot else np.uint8(0)  # a miss: no albedo, no light (the general path's encode[0])
     ox, oy, oz = np.float32(pose[0, 3]), np.float32(pose[1, 3]), np.float32(pose[2, 3])
     column_terms = _column_terms(pose, pixel_x)  # as raster._resolve takes them: the same bits of every ray
     rays = np.empty((3, width), np.float32)
@@ -166,7 +171,6 @@ def _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, 
     unit = (np.float32(0.0), np.float32(0.0), np.float32(0.0))
     for row in range(row_start, row_stop):
         _row_rays(column_terms, pose, pixel_y[row], rays)
-        run_label, run_start = -1, 0
         for column in range(width):
             triangle = winner[row, column]
             t, u, v = np.float32(0.0), np.float32(0.0), np.float32(0.0)
@@ -184,23 +188,11 @@ def _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, 
                     t, u, v = _intersect(frame, rays[0, column], rays[1, column], rays[2, column])
                 else:
                     t = _distance(frame, rays[0, column], rays[1, column], rays[2, column])
-            # A hit as the resolve reports it (0 < t < inf) that the clip keeps (near <= t <= far, in float32).
-            hit = t > 0.0 and t < np.inf and t >= near and t <= far
-            pixel_label = label if hit else 0
-            if pixel_label != run_label:
-                if run_label >= 0:
-                    add_run(areas, boxes, run_label, row, run_start, column)
-                run_label, run_start = pixel_label, column
-            if not hit:
-                millimetres[row, column] = 0
-                panoptic[row, column] = 0
-                if colour:
-                    rgb[row, column, 0] = rgb[row, column, 1] = rgb[row, column, 2] = 0
-                if spot:
-                    lights[column] = 0.0
-                continue
-            millimetres[row, column] = millimetres_of(t, near, far)
+            depths[column] = t
             panoptic[row, column] = object_id
+            row_labels[column] = label
+            if not colour or triangle < 0:
+                continue
             if spot:
                 lights[column] = _spot_of(unit[0], unit[1], unit[2], rays[0, column], rays[1, column], rays[2, column],
                                           scale_steps[row, column], t)[1]
@@ -210,12 +202,32 @@ def _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, 
                 rgb[row, column, 2] = _albedo_of_terms(terms, 2, u, v)
             elif colour:
                 rgb[row, column, 0], rgb[row, column, 1], rgb[row, column, 2] = records[face, 0], records[face, 1], records[face, 2]
-        add_run(areas, boxes, run_label, row, run_start, width)
-        if spot:
+        for column in range(width):
+            hit = _kept(depths[column], near, far)
+            millimetres[row, column] = millimetres_of(depths[column], near, far)  # (0 for any t not kept)
+            panoptic[row, column] = panoptic[row, column] if hit else np.uint32(0)
+            row_labels[column] = row_labels[column] if hit else 0
+        if colour:
             for column in range(width):
-                light = lights[column]
-                for channel in range(3):
-                    rgb[row, column, channel] = _lit_albedo(decode, encode, rgb[row, column, channel], light, steps)
+                if not _kept(depths[column], near, far):
+                    rgb[row, column, 0] = rgb[row, column, 1] = rgb[row, column, 2] = black
+                elif spot:
+                    light = lights[column]
+                    for channel in range(3):
+                        rgb[row, column, channel] = _lit_albedo(decode, encode, rgb[row, column, channel], light, steps)
+        run_label, run_start = row_labels[0], 0
+        for column in range(1, width):
+            if row_labels[column] != run_label:
+                add_run(areas, boxes, run_label, row, run_start, column)
+                run_label, run_start = row_labels[column], column
+        add_run(areas, boxes, run_label, row, run_start, width)
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _kept(t, near, far):  # pragma: no cover (compiled)
+    """Whether a pixel's t is a hit as the resolve reports it (0 < t < inf; no winner: t = 0) that the clip keeps
+    (near <= t <= far, in float32). Combined by `&`: no branches, so a loop of it is vectorised."""
+    return (t > np.float32(0.0)) & (t < np.float32(np.inf)) & (t >= near) & (t <= far)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
