@@ -143,3 +143,18 @@ def test_a_frame_pass_lights_by_a_diffuse_spot_alone_or_fails_in_one_line() -> N
     with pytest.raises(ValueError, match="SurfaceColors"):
         FramePass(frame, labels, None, 0.01, 1.0, Shader(SPOT, 1.0, lengths))
     assert FramePass(frame, labels, colors, 0.01, 1.0, Shader(SPOT, 1.0, lengths)).spot_terms is not None
+
+
+@pytest.mark.parametrize("light", [None, SPOT])
+def test_hits_beyond_the_millimetres_range_keep_their_ids_and_colour(light: Illumination | None) -> None:
+    """A hit farther than 65.535 m stores depth 0 (uint16 mm) but is a hit: its id, segment rows and colour are the
+    general path's (the pass's depth and its hit test are separate loops)."""
+    scene = _shaded_room()
+    renderer = VideoRenderer(scene, _body(light=light), exposure=4.0e4, raycaster=SceneRaycaster(scene, threads=2))
+    pose = look_at(np.array([0.0, 20.0, -75.0]), np.array([0.0, 1.2, 0.0]))  # the room ~77 m away
+    fused = renderer.render(pose)
+    general, segments = _general(renderer, pose)
+    for name in ("rgb", "depth", "panoptic"):
+        assert np.array_equal(getattr(fused, name), getattr(general, name)), name
+    assert _same_segments(fused.segments, segments)
+    assert not fused.depth.any() and fused.panoptic.any() and fused.rgb[fused.panoptic > 0].any()
