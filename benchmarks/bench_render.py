@@ -225,8 +225,8 @@ def run_ours(scene: Scene, poses: np.ndarray, body: Embodiment, exposure: float,
     Per phase (cast, buffers, segments, zarr) wall and CPU seconds (`<phase>_s`, `<phase>_cpu_s`); the shard
     writes run behind the loop as the render stage's do (`background` None: with several threads), so their
     CPU lands in whichever phase they overlap: `background=False` gives a clean profile. A fused frame
-    (`VideoRenderer.fused`: ambient light) is written and its segments counted by the cast's resolve, so its
-    "cast" holds its buffers and segments too, which then take ~0 ms.
+    (`VideoRenderer.fused`: ambient light, or a spot alone on diffuse surfaces) is written and its segments counted
+    by the cast's resolve, so its "cast" holds its buffers and segments too, which then take ~0 ms.
     """
     started = time.perf_counter()
     raycaster = SceneRaycaster(scene, threads=threads)

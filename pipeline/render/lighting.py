@@ -220,6 +220,14 @@ class Shader:
                       material=self._lit_material() if spot else None, indirect=indirect if spot else None,
                       indirect_scale=self.indirect_scale, first_row=self.first_row)
 
+    def spot_terms(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(scale_steps, decode, encode) of a spot on diffuse surfaces: all a pixel lit by the spot alone needs of
+        the shader besides its albedo, normal, ray and depth (`_shade_pixels`' docstring), for fused.FramePass."""
+        if self.cone is None or self.illumination.material != "diffuse":
+            raise ValueError(f"spot_terms light diffuse surfaces by a spot, not {self.illumination.kind} light on "
+                             f"{self.illumination.material} ones: shade those with Shader.shade_surfaces")
+        return self._spot_scale_steps, self._decode, self._encode
+
     def _lit_material(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The principled tables, or None for a diffuse surface (its frames keep today's exact arithmetic)."""
         return self._material if self.illumination.material == "principled" else None
@@ -336,13 +344,28 @@ def _interpolated_albedo(records, f, channel, u, v):  # pragma: no cover (compil
 def _spot_light(normal, direction, depth, scale_steps, row, column):  # pragma: no cover (compiled)
     """(n . ray, s) of a pixel: s = |n . ray| scale_steps / z^2, the spot's radiance in encoder steps per unit
     of linear albedo (`_shade_pixels`' docstring)."""
-    facing = normal[row, column, 0] * direction[row, column, 0]
-    facing += normal[row, column, 1] * direction[row, column, 1]
-    facing += normal[row, column, 2] * direction[row, column, 2]
-    light = abs(facing) * scale_steps[row, column]
-    z = depth[row, column]
+    return _spot_of(normal[row, column, 0], normal[row, column, 1], normal[row, column, 2], direction[row, column, 0],
+                    direction[row, column, 1], direction[row, column, 2], scale_steps[row, column], depth[row, column])
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _spot_of(nx, ny, nz, dx, dy, dz, scale, z):  # pragma: no cover (compiled)
+    """`_spot_light` of a pixel's normal n, ray d, scale_steps and depth z, given as float32 scalars (the fused pass
+    has them in registers): (n . d, |n . d| scale / z^2), in that order of operations."""
+    facing = nx * dx
+    facing += ny * dy
+    facing += nz * dz
+    light = abs(facing) * scale
     light /= z * z
     return facing, light
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _lit_albedo(decode, encode, albedo, light, steps):  # pragma: no cover (compiled)
+    """A channel of a pixel lit by the spot alone on a diffuse surface: encode[trunc(clip(decode[a] s, 0, steps) +
+    0.5)] (`_shade_pixels`' docstring). An unsigned index (the value is >= 0.5) spares Numba's negative-index test:
+    ~11 % of the loop."""
+    return encode[np.uintp(min(max(decode[albedo] * light, np.float32(0.0)), steps) + np.float32(0.5))]
 
 
 @numba.njit(nogil=True, cache=True, inline="always")
@@ -374,7 +397,6 @@ def _vertex_colour_pixels(records, face, barycentric, out, spot, normal, directi
     shading). Two loops of their own would save another ~7 % of the ambient one."""
     height, width = face.shape
     steps = np.float32(len(encode) - 1)
-    half, low = np.float32(0.5), np.float32(0.0)
     terms = np.empty((3, 3), np.float32)
     for row in range(height):
         last = -1
@@ -390,6 +412,4 @@ def _vertex_colour_pixels(records, face, barycentric, out, spot, normal, directi
                 continue
             light = _spot_light(normal, direction, depth, scale_steps, row, column)[1]
             for channel in range(3):
-                albedo = _albedo_of_terms(terms, channel, u, v)
-                # An unsigned index (the value is >= 0.5) spares Numba's negative-index test: ~11 % of the loop.
-                out[row, column, channel] = encode[np.uintp(min(max(decode[albedo] * light, low), steps) + half)]
+                out[row, column, channel] = _lit_albedo(decode, encode, _albedo_of_terms(terms, channel, u, v), light, steps)

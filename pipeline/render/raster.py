@@ -631,8 +631,7 @@ def _resolve(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_s
             if triangle >= 0:
                 if triangle != current:
                     current, frame = triangle, _triangle_frame(corners, triangle, ox, oy, oz)
-                    length = np.sqrt(frame[6] * frame[6] + frame[7] * frame[7] + frame[8] * frame[8])
-                    unit = (frame[6] / length, frame[7] / length, frame[8] / length)
+                    unit = _unit_normal(frame)
                 t, u, v = _intersect(frame, dx, dy, dz)
             if not (t > 0.0 and t < np.inf):  # no triangle, or one the ray only grazes (no hit to report)
                 depth[row, column] = np.inf
@@ -682,6 +681,13 @@ def _triangle_frame(corners, triangle, ox, oy, oz):  # pragma: no cover (compile
     nx, ny, nz = e2y * e1z - e2z * e1y, e2z * e1x - e2x * e1z, e2x * e1y - e2y * e1x
     cx, cy, cz = v0x - ox, v0y - oy, v0z - oz
     return e1x, e1y, e1z, e2x, e2y, e2z, nx, ny, nz, cx, cy, cz, nx * cx + ny * cy + nz * cz
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _unit_normal(frame):  # pragma: no cover (compiled)
+    """The geometric normal of a `_triangle_frame`, normalised in float32: the hits' `normal`."""
+    length = np.sqrt(frame[6] * frame[6] + frame[7] * frame[7] + frame[8] * frame[8])
+    return frame[6] / length, frame[7] / length, frame[8] / length
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")

@@ -103,14 +103,16 @@ class VideoRenderer:
         self.indirect = (IndirectGather(self.raycaster.mesh, self.colors, light, seed, self.raycaster.threads)
                          if light.kind == "spot" and light.indirect.bounces > 0 else None)
         self._lights: tuple[np.ndarray, Future] | None = None  # (pose, its virtual lights being traced)
-        # Whether `render` needs the hits' normals and directions: the spot's shading and a depth sensor model read
-        # them; ambient light with an ideal sensor reads neither, and the resolve skips ~7 MB of stores a frame.
+        # Whether the general path (`trace`, then `buffers`) needs the hits' normals and directions: the spot's
+        # shading and a depth sensor model read them; ambient light with an ideal sensor reads neither, and the
+        # resolve skips ~7 MB of stores a frame.
         self.needs_surfaces = light.kind == "spot" or self.sensor is not None
-        # Such a frame on a z-buffer cast and a vertex-coloured scene skips the hits altogether: the resolve writes
-        # its buffers and counts its segments itself (fused.FramePass; a bench frame, paired in one process,
-        # 1 / 2 threads: 28.8 -> 26.8 / 28.5 -> 27.0 ms CPU from the pose to the segments).
-        self.fused = (not self.needs_surfaces and self.raycaster.rasterize and self.colors.records is not None
-                      and self.indirect is None)
+        # A frame with an ideal sensor on a z-buffer cast and a vertex-coloured scene skips the hits altogether under
+        # ambient light or a spot alone on diffuse surfaces: the resolve writes its buffers, lit by each hit's normal,
+        # ray and depth under the spot, and counts its segments itself (fused.FramePass; an ambient bench frame,
+        # paired in one process, 1 / 2 threads: 28.8 -> 26.8 / 28.5 -> 27.0 ms CPU from the pose to the segments).
+        self.fused = (self.sensor is None and self.raycaster.rasterize and self.colors.records is not None
+                      and self.indirect is None and (light.kind == "ambient" or light.material == "diffuse"))
         # Frames are shaded in row bands: a band's temporaries stay in the core's cache (4 bands of a 640x480
         # frame: 12 % faster than whole frames), and with several cast threads the bands run in parallel
         # (numpy releases the GIL: 2 threads take ~60 % of the time). A 1-CPU worker runs them inline.
@@ -149,7 +151,8 @@ class VideoRenderer:
         (the caster's hits are left stale); without `colour`, its depth and ids alone (rgb left unset)."""
         sensor = self.embodiment.sensor
         frame = new_frame(self.camera.height, self.camera.width, dense=False)
-        into = FramePass(frame, self.labels, self.colors if colour else None, sensor.near, sensor.far)
+        spot = self.shader if colour and self.embodiment.illumination.kind == "spot" else None
+        into = FramePass(frame, self.labels, self.colors if colour else None, sensor.near, sensor.far, spot)
         self.raycaster.cast(self.camera, camera_to_world, into=into)
         frame.segments = into.segments()
         return frame

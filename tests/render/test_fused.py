@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pipeline.config import Illumination, Sensor
+from pipeline.config import Illumination, IndirectLight, Sensor
 from pipeline.io.segments import frame_segments
 from pipeline.render.fused import FramePass
-from pipeline.render.lighting import SurfaceColors
+from pipeline.render.lighting import Shader, SurfaceColors
 from pipeline.render.raycaster import RayHits, SceneRaycaster
 from pipeline.render.renderer import SceneLabels, VideoRenderer, new_frame
 from pipeline.render.sensors import depth_to_millimetres
@@ -20,6 +20,7 @@ from tests.render.tiny_scenes import embodiment, look_at, room_scene
 # Inside the room, and far outside it looking at it (the room and the void around it: hits and misses).
 POSES = [look_at(np.array([0.5, 1.0, -1.5]), np.array([0.0, 0.4, 1.5])),
          look_at(np.array([0.3, 3.0, -12.0]), np.array([0.5, 0.7, 1.0]))]
+SPOT = Illumination(kind="spot", power=20.0)
 
 
 def _shaded_room():
@@ -49,16 +50,19 @@ def _same_segments(found, expected) -> bool:
             and found.void_pixels == expected.void_pixels)
 
 
+@pytest.mark.parametrize("light", ["ambient", "spot"])
 @pytest.mark.parametrize("threads", [1, 3])
 @pytest.mark.parametrize("scene_kind", ["interpolated", "flat"])
 @pytest.mark.parametrize("clip", [(0.01, 1000.0), (1.2, 3.0)])
-def test_a_fused_frame_is_the_general_path_s_frame(threads: int, scene_kind: str, clip: tuple[float, float]) -> None:
-    """RGB, depth (mm), panoptic ids and segment rows equal the general path's, on faces of one colour and of
-    interpolated colours, with hits the clip range removes (near 1.2 m, far 3 m) and rays that hit nothing,
-    in one band and in three."""
+def test_a_fused_frame_is_the_general_path_s_frame(light: str, threads: int, scene_kind: str,
+                                                    clip: tuple[float, float]) -> None:
+    """RGB, depth (mm), panoptic ids and segment rows equal the general path's, under ambient light and under a
+    spot alone (lit by each hit's normal, ray and depth), on faces of one colour and of interpolated colours,
+    with hits the clip range removes (near 1.2 m, far 3 m) and rays that hit nothing, in one band and in three."""
     scene = _shaded_room() if scene_kind == "interpolated" else room_scene()
     caster = SceneRaycaster(scene, threads=threads)
-    renderer = VideoRenderer(scene, _body(*clip), exposure=1.0, raycaster=caster)
+    spot = light == "spot"
+    renderer = VideoRenderer(scene, _body(*clip, light=SPOT if spot else None), exposure=4.0, raycaster=caster)
     assert renderer.fused and renderer.colors.flat == (scene_kind == "flat")
     misses = []
     for pose in POSES:
@@ -69,6 +73,9 @@ def test_a_fused_frame_is_the_general_path_s_frame(threads: int, scene_kind: str
         assert fused.dense is None and _same_segments(fused.segment_statistics(renderer.labels), segments)
         assert (general.rgb[general.depth == 0] == 0).all() and (general.panoptic[general.depth == 0] == 0).all()
         misses.append(float((general.depth == 0).mean()))
+        # The spot's frame is lit: not the albedo the ambient frame shows (where anything is hit).
+        albedo = renderer.colors.albedo(renderer.trace(pose))
+        assert np.any(general.rgb != albedo) == (spot and general.depth.any())
     assert 0.0 < misses[1] < 1.0 or clip[0] > 0.01  # the void around the room
     # Inside the room every ray hits; the clip range removes the far wall and the floor under the camera.
     assert (misses[0] > 0.05) == (clip[0] > 0.01)
@@ -104,15 +111,50 @@ def test_a_cast_into_a_frame_pass_fills_its_frame_and_leaves_the_hits_alone() ->
         SceneRaycaster(scene, rasterize=False).cast(CAMERA, pose, into=FramePass(frame, labels, colors, 0.01, 1.0))
 
 
-def test_only_ambient_frames_with_an_ideal_sensor_on_vertex_colours_and_a_z_buffer_are_fused() -> None:
+def test_only_ambient_or_direct_diffuse_spot_frames_with_an_ideal_sensor_on_vertex_colours_and_a_z_buffer_are_fused(
+        ) -> None:
     scene = room_scene()
-    spot = Illumination(kind="spot", power=20.0)
     assert VideoRenderer(scene, embodiment(), 1.0).fused
-    assert not VideoRenderer(scene, embodiment(light=spot), 1.0).fused
+    assert VideoRenderer(scene, embodiment(light=SPOT), 1.0).fused
+    principled = SPOT.model_copy(update={"material": "principled"})
+    bounced = SPOT.model_copy(update={"indirect": IndirectLight(bounces=1, virtual_lights=16)})
+    assert not VideoRenderer(scene, embodiment(light=principled), 1.0).fused
+    assert not VideoRenderer(scene, embodiment(light=bounced), 1.0).fused
     assert not VideoRenderer(scene, embodiment(model="structured_light"), 1.0).fused
+    assert not VideoRenderer(scene, embodiment(model="structured_light", light=SPOT), 1.0).fused
     assert not VideoRenderer(scene, embodiment(), 1.0, raycaster=SceneRaycaster(scene, rasterize=False)).fused
     textured = dataclasses.replace(scene, vertex_colors=None)
     assert not VideoRenderer(textured, embodiment(), 1.0).fused
     with pytest.raises(ValueError, match="vertex-coloured"):
         FramePass(new_frame(2, 2), VideoRenderer(textured, embodiment(), 1.0).labels,
                   VideoRenderer(textured, embodiment(), 1.0).colors, 0.01, 1.0)
+
+
+def test_a_frame_pass_lights_by_a_diffuse_spot_alone_or_fails_in_one_line() -> None:
+    """Its spot is a diffuse surface's (a principled one, or ambient light, fails naming the shader to use), and it
+    needs the colours it lights."""
+    scene = room_scene()
+    labels, colors, frame = SceneLabels(scene), SurfaceColors(scene), new_frame(2, 2, dense=False)
+    lengths = np.ones((2, 2), np.float32)
+    for light in (SPOT.model_copy(update={"material": "principled"}), Illumination()):
+        with pytest.raises(ValueError, match="shade_surfaces") as error:
+            FramePass(frame, labels, colors, 0.01, 1.0, Shader(light, 1.0, lengths))
+        assert "\n" not in str(error.value)
+    with pytest.raises(ValueError, match="SurfaceColors"):
+        FramePass(frame, labels, None, 0.01, 1.0, Shader(SPOT, 1.0, lengths))
+    assert FramePass(frame, labels, colors, 0.01, 1.0, Shader(SPOT, 1.0, lengths)).spot_terms is not None
+
+
+@pytest.mark.parametrize("light", [None, SPOT])
+def test_hits_beyond_the_millimetres_range_keep_their_ids_and_colour(light: Illumination | None) -> None:
+    """A hit farther than 65.535 m stores depth 0 (uint16 mm) but is a hit: its id, segment rows and colour are the
+    general path's (the pass's depth and its hit test are separate loops)."""
+    scene = _shaded_room()
+    renderer = VideoRenderer(scene, _body(light=light), exposure=4.0e4, raycaster=SceneRaycaster(scene, threads=2))
+    pose = look_at(np.array([0.0, 20.0, -75.0]), np.array([0.0, 1.2, 0.0]))  # the room ~77 m away
+    fused = renderer.render(pose)
+    general, segments = _general(renderer, pose)
+    for name in ("rgb", "depth", "panoptic"):
+        assert np.array_equal(getattr(fused, name), getattr(general, name)), name
+    assert _same_segments(fused.segments, segments)
+    assert not fused.depth.any() and fused.panoptic.any() and fused.rgb[fused.panoptic > 0].any()
