@@ -262,6 +262,25 @@ def test_the_compiled_landing_gives_the_bytes_of_the_numpy_arithmetic_it_replace
     assert incoming.tobytes() == expected_incoming.astype(np.float32).tobytes()
 
 
+def test_a_wide_clamp_keeps_what_the_near_surfaces_lobes_reflect_in_a_principled_box() -> None:
+    """The near field lets a near surface reflect its indirect light through its lobe as well as its base (it
+    took the base alone: a 1 m clamp lost 4.5 % of the irradiance and 8.4 % of the glossy term that a 5 cm clamp
+    keeps; now 2.9 % and 5.3 %, the rest being the near surfaces' own near field)."""
+    scene, sides = _box(2.0)
+    points, normals = _surface_samples(sides, 3000, np.random.default_rng(1))
+    pose = look_at(np.zeros(3), np.array([0.3, 0.2, 1.0]))
+    means = []
+    for clamp in (1.0, 0.05):
+        light = Illumination(kind="spot", power=20.0, material="principled", specular=1.0, roughness=0.5,
+                             indirect=IndirectLight(bounces=8, traced_bounces=8, virtual_lights=256, gather_stride=4,
+                                                    interleave=2, clamp_distance=clamp))
+        gather = IndirectGather(SceneRaycaster(scene).mesh, SurfaceColors(scene), light, seed=0)
+        means.append(gather.irradiance_at(points, normals, pose).mean(axis=0))
+    wide, narrow = means
+    assert wide[0] == pytest.approx(narrow[0], rel=0.035)  # irradiance
+    assert wide[3] == pytest.approx(narrow[3], rel=0.065)  # glossy term
+
+
 @pytest.mark.parametrize("material", ["diffuse", "principled"])
 def test_light_meeting_a_surface_at_a_grazing_angle_bounces_on_forward_only_through_the_lobe(material: str) -> None:
     # A floor (normal +z) lit from the -x side at mu = 0.2: the principled lobe sends the light on forward (+x),
