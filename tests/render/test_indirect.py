@@ -9,7 +9,7 @@ import pytest
 
 from pipeline.config import Illumination, IndirectLight
 from pipeline.render.indirect import IndirectGather, shadow_rays
-from pipeline.render.indirect.light_paths import SURFACE_OFFSET
+from pipeline.render.indirect.light_paths import SURFACE_OFFSET, _landed as landed
 from pipeline.render.indirect.shadow_rays import _accumulate as accumulate
 from pipeline.render.lighting import SurfaceColors, srgb_to_linear
 from pipeline.render.material import TABLE_SIZE, glossy_brdf, multiscatter_energy, reflection_tables
@@ -239,6 +239,46 @@ def test_textured_scenes_bounce_their_texture_colours() -> None:
     light = VideoRenderer(scene, embodiment(light=_spot(bounces=2)), exposure=2.0).indirect.irradiance(hits, pose)
     lit = light[hits.hit]
     assert np.all(lit[:, 0] > lit[:, 1])  # red walls bounce red light
+
+
+def test_the_compiled_landing_gives_the_bytes_of_the_numpy_arithmetic_it_replaced() -> None:
+    """Where rays land, the normal turned to the side the ray came from, the direction back (misses included)."""
+    rng = np.random.default_rng(3)
+    count = 999
+    origins = rng.normal(size=(count, 3)).astype(np.float32)
+    directions = rng.normal(size=(count, 3)).astype(np.float32) * np.float32(2.5)
+    t = rng.random(count).astype(np.float32) * np.float32(7.0)
+    face = np.where(rng.random(count) < 0.2, -1, rng.integers(0, 50, count))
+    t[face < 0] = np.inf  # what Embree leaves for a miss
+    normal = rng.normal(size=(count, 3)).astype(np.float32)
+    expected_normal = normal.copy()
+    expected = origins + directions * np.where(face >= 0, t, 0.0)[:, None]
+    expected_normal *= np.where(np.sum(expected_normal * directions, axis=1) > 0, -1.0, 1.0)[:, None].astype(np.float32)
+    expected_incoming = -directions / np.maximum(np.linalg.norm(directions, axis=1, keepdims=True), 1e-12)
+    positions, incoming = landed(origins, directions, t, face, normal)
+    assert positions.dtype == incoming.dtype == np.float32
+    assert positions.tobytes() == expected.astype(np.float32).tobytes()
+    assert normal.tobytes() == expected_normal.tobytes()
+    assert incoming.tobytes() == expected_incoming.astype(np.float32).tobytes()
+
+
+def test_a_wide_clamp_keeps_what_the_near_surfaces_lobes_reflect_in_a_principled_box() -> None:
+    """The near field lets a near surface reflect its indirect light through its lobe as well as its base (it
+    took the base alone: a 1 m clamp lost 4.5 % of the irradiance and 8.4 % of the glossy term that a 5 cm clamp
+    keeps; now 2.9 % and 5.3 %, the rest being the near surfaces' own near field)."""
+    scene, sides = _box(2.0)
+    points, normals = _surface_samples(sides, 3000, np.random.default_rng(1))
+    pose = look_at(np.zeros(3), np.array([0.3, 0.2, 1.0]))
+    means = []
+    for clamp in (1.0, 0.05):
+        light = Illumination(kind="spot", power=20.0, material="principled", specular=1.0, roughness=0.5,
+                             indirect=IndirectLight(bounces=8, traced_bounces=8, virtual_lights=256, gather_stride=4,
+                                                    interleave=2, clamp_distance=clamp))
+        gather = IndirectGather(SceneRaycaster(scene).mesh, SurfaceColors(scene), light, seed=0)
+        means.append(gather.irradiance_at(points, normals, pose).mean(axis=0))
+    wide, narrow = means
+    assert wide[0] == pytest.approx(narrow[0], rel=0.035)  # irradiance
+    assert wide[3] == pytest.approx(narrow[3], rel=0.065)  # glossy term
 
 
 @pytest.mark.parametrize("material", ["diffuse", "principled"])

@@ -27,6 +27,8 @@ from pipeline.render.material import glossy_brdf, reflection_tables
 SURFACE_OFFSET = 1e-4
 # Ratio of successive bounces used for the untraced ones at most (a white closed room would give 1).
 MAX_BOUNCE_RATIO = 0.95
+# Linear albedo of each 8-bit sRGB level (a lookup rather than the power per light and bounce).
+LINEAR_ALBEDO = srgb_to_linear(np.arange(256) / 255.0)
 
 
 class VirtualLights:
@@ -103,14 +105,11 @@ class LightPaths:
         barycentric, normal = np.empty((count, 2), np.float32), np.empty((count, 3), np.float32)
         self.mesh.intersect(np.ascontiguousarray(origins), np.ascontiguousarray(directions), 0.0,
                             (t, face, barycentric, normal))
+        positions, incoming = _landed(origins, directions, t, face, normal)
         keep = face >= 0
-        positions = origins + directions * np.where(keep, t, 0.0)[:, None]
-        facing = np.sum(normal * directions, axis=1)
-        normal *= np.where(facing > 0, -1.0, 1.0)[:, None].astype(np.float32)  # the side the light came from
-        incoming = -directions / np.maximum(np.linalg.norm(directions, axis=1, keepdims=True), 1e-12)
         rho = np.zeros((count, 3), np.float32)
-        rho[keep] = srgb_to_linear(self.colors.albedo_at(face[keep], barycentric[keep]) / 255.0)
-        return positions.astype(np.float32), normal, incoming.astype(np.float32), rho, keep
+        rho[keep] = LINEAR_ALBEDO[self.colors.albedo_at(face[keep], barycentric[keep])]
+        return positions, normal, incoming, rho, keep
 
     def _reflectance(self, normals: np.ndarray, incoming: np.ndarray, rho: np.ndarray) -> np.ndarray:
         """(n, 3) fraction of the light arriving from `incoming` that a surface reflects (base and lobe)."""
@@ -124,6 +123,30 @@ class LightPaths:
         tables = self.tables
         return _scatter_paths(normals, incoming, rho, numbers, tables.albedo, tables.energy,
                               float(widened_alpha(tables.alpha, 1.0, np.float64)), tables.ior)
+
+
+@numba.njit(nogil=True, cache=True)
+def _landed(origins, directions, t, face, normal):  # pragma: no cover (compiled)
+    """Where float32 rays land (n, 3) (their origin when they hit nothing) and the unit directions back along
+    them (n, 3); turns `normal` to the side each ray came from. The float32 arithmetic of the numpy code it
+    replaced, in its order (the same bytes)."""
+    count = len(origins)
+    positions = np.empty((count, 3), np.float32)
+    incoming = np.empty((count, 3), np.float32)
+    for p in range(count):
+        reach = t[p] if face[p] >= 0 else np.float32(0.0)
+        facing = np.float32(0.0)
+        squared = np.float32(0.0)
+        for a in range(3):
+            positions[p, a] = origins[p, a] + directions[p, a] * reach
+            facing += normal[p, a] * directions[p, a]
+            squared += directions[p, a] * directions[p, a]
+        sign = np.float32(-1.0) if facing > 0 else np.float32(1.0)
+        length = max(np.sqrt(squared), np.float32(1e-12))
+        for a in range(3):
+            normal[p, a] *= sign
+            incoming[p, a] = -directions[p, a] / length
+    return positions, incoming
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
