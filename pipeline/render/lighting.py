@@ -44,6 +44,10 @@ def srgb_to_linear(values: np.ndarray) -> np.ndarray:
     return np.where(values <= 0.04045, values / 12.92, ((values + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
+# The linear reflectance of each 8-bit sRGB level: a lookup where albedos are decoded per pixel, light or bounce.
+LINEAR_OF_LEVEL = srgb_to_linear(np.arange(256) / 255.0)
+
+
 def linear_to_srgb(values: np.ndarray) -> np.ndarray:
     """Linear values in [0, 1] -> sRGB encoding in [0, 1] (IEC 61966-2-1)."""
     values = np.clip(np.asarray(values, np.float32), 0.0, 1.0)
@@ -186,7 +190,7 @@ class Shader:
             scale = (radiant_intensity(illumination) * exposure / math.pi) * self.cone / self.ray_lengths
             self._spot_scale_steps = (scale / (self.ray_lengths * self.ray_lengths)).astype(np.float32)
             self._spot_scale_steps *= np.float32(self._encode_steps)
-        self._decode = srgb_to_linear(np.arange(256) / 255.0)
+        self._decode = LINEAR_OF_LEVEL
         self._encode = np.rint(255.0 * linear_to_srgb(np.arange(self._encode_steps + 1) / self._encode_steps))
         self._encode = self._encode.astype(np.uint8)
         self.tables = reflection_tables(illumination)

@@ -19,7 +19,7 @@ import numpy as np
 from pipeline.config import Illumination
 from pipeline.render.embree import EmbreeMesh
 from pipeline.render.indirect.sampling import normal_frame, spot_pattern, table_entries, table_entry, widened_alpha
-from pipeline.render.lighting import SurfaceColors, srgb_to_linear
+from pipeline.render.lighting import LINEAR_OF_LEVEL, SurfaceColors
 from pipeline.render.material import glossy_brdf, reflection_tables
 
 # Offset of shadow and bounce rays off their surface, relative to the distance from the camera (float32
@@ -27,8 +27,6 @@ from pipeline.render.material import glossy_brdf, reflection_tables
 SURFACE_OFFSET = 1e-4
 # Ratio of successive bounces used for the untraced ones at most (a white closed room would give 1).
 MAX_BOUNCE_RATIO = 0.95
-# Linear albedo of each 8-bit sRGB level (a lookup rather than the power per light and bounce).
-LINEAR_ALBEDO = srgb_to_linear(np.arange(256) / 255.0)
 
 
 class VirtualLights:
@@ -108,7 +106,7 @@ class LightPaths:
         positions, incoming = _landed(origins, directions, t, face, normal)
         keep = face >= 0
         rho = np.zeros((count, 3), np.float32)
-        rho[keep] = LINEAR_ALBEDO[self.colors.albedo_at(face[keep], barycentric[keep])]
+        rho[keep] = LINEAR_OF_LEVEL[self.colors.albedo_at(face[keep], barycentric[keep])]
         return positions, normal, incoming, rho, keep
 
     def _reflectance(self, normals: np.ndarray, incoming: np.ndarray, rho: np.ndarray) -> np.ndarray:

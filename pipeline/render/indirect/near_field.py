@@ -19,7 +19,7 @@ from pipeline.render.indirect.grid import CHANNELS
 from pipeline.render.indirect.light_paths import SURFACE_OFFSET
 from pipeline.render.indirect.sampling import (SEED_STREAM, local_directions, normal_frame, table_entry,
                                                widened_alpha)
-from pipeline.render.lighting import SurfaceColors, cone_falloff, radiant_intensity, srgb_to_linear
+from pipeline.render.lighting import LINEAR_OF_LEVEL, SurfaceColors, cone_falloff, radiant_intensity
 from pipeline.render.material import ReflectionTables, glossy_brdf
 
 # Rays per gather point that find the surfaces nearer than the clamp distance (bias compensation). 16 rather than 8:
@@ -71,7 +71,7 @@ def add_near_field(mesh: EmbreeMesh, colors: SurfaceColors, illumination: Illumi
     blocked = np.empty(len(near), np.bool_)
     mesh.occluded(shadow_origins, shadow_directions, np.full(1, 1.0 - SURFACE_OFFSET, np.float32), blocked)
     spot = radiant_intensity(illumination) * cone_falloff(off_axis, illumination)
-    rho = srgb_to_linear(colors.albedo_at(face[near], barycentric[near]) / 255.0)
+    rho = LINEAR_OF_LEVEL[colors.albedo_at(face[near], barycentric[near])]
     _near_light(near, cells, directions, positions, hit_normals, distance, rho, spot, blocked, normals, eyes, camera,
                 clamp, tables.diffuse, tables.albedo, tables.energy, tables.alpha, tables.ior, gathered)
 
