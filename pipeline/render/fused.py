@@ -268,5 +268,5 @@ def _distance(frame, dx, dy, dz):  # pragma: no cover (compiled)
 def _uniform(terms):  # pragma: no cover (compiled)
     """Whether a face's colour terms (`_face_terms`) are one colour at every point: then its albedo is its first
     corner's colour, c0 + 0.5 + 0 u + 0 v truncated, for any finite barycentrics (half the bench house's faces)."""
-    return (terms[0, 1] == 0.0 and terms[0, 2] == 0.0 and terms[1, 1] == 0.0 and terms[1, 2] == 0.0
-            and terms[2, 1] == 0.0 and terms[2, 2] == 0.0)
+    return ((terms[0, 1] == 0.0) & (terms[0, 2] == 0.0) & (terms[1, 1] == 0.0) & (terms[1, 2] == 0.0)
+            & (terms[2, 1] == 0.0) & (terms[2, 2] == 0.0))
