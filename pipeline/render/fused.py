@@ -18,10 +18,15 @@ Measured on the bench's 96 consecutive poses, paired with the general path pose 
 per frame from the pose to the segment statistics, median of 3 rounds, load ~4): ambient 28.8 -> 26.8 at 1
 thread, 28.5 -> 27.0 at 2; depth and ids alone 24.7 -> 23.9 and 25.0 -> 24.4. Most of the work is arithmetic
 (the intersection's divisions, the colour), which fusing only moves: the stores and loads it saves are cheap.
+
+A run's label and colour record are read by its winning (reordered) triangle from copies of the per-face tables in
+the mesh's cluster order (`by_triangle`): through the original face index they were scattered loads, mostly cache
+misses. Moving the divisions or the colour into branch-free passes of their own measured slower (see `_resolve_rows`).
 """
 
 from __future__ import annotations
 
+import threading
 import weakref
 from typing import TYPE_CHECKING
 
@@ -42,6 +47,7 @@ _NO_SCALE, _NO_DECODE, _NO_ENCODE = np.zeros((1, 1), np.float32), np.zeros(1, np
 
 
 _BY_TRIANGLE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # mesh -> [(per-face table, by triangle)]
+_BY_TRIANGLE_LOCK = threading.Lock()
 
 
 def by_triangle(mesh: ClusteredMesh, per_face: np.ndarray) -> np.ndarray:
@@ -49,13 +55,14 @@ def by_triangle(mesh: ClusteredMesh, per_face: np.ndarray) -> np.ndarray:
     and table. Why: the resolve reads a run's colour record and dense label by its winning triangle; through
     `face_ids` they were scattered loads, mostly cache misses (original faces are in no spatial order), where a
     cluster's triangles are neighbours in memory."""
-    tables = _BY_TRIANGLE.setdefault(mesh, [])
-    for table, reordered in tables:
-        if table is per_face:
-            return reordered
-    reordered = np.ascontiguousarray(per_face[mesh.face_ids])
-    tables.append((per_face, reordered))  # (bands racing here on a first frame build it alike)
-    return reordered
+    with _BY_TRIANGLE_LOCK:  # (a frame's first bands ask at once: one builds, the others wait for it)
+        tables = _BY_TRIANGLE.setdefault(mesh, [])
+        for table, reordered in tables:
+            if table is per_face:
+                return reordered
+        reordered = np.ascontiguousarray(per_face[mesh.face_ids])
+        tables.append((per_face, reordered))
+        return reordered
 
 
 class FramePass:
@@ -182,6 +189,10 @@ def _resolve_rows(corners, winner, pose, pixel_x, pixel_y, row_start, row_stop, 
     # blackens the colour of misses and, with `spot`, lights the rest; then the label runs are counted. Against one
     # loop doing it all per pixel (bench poses, 1 band, 1 thread, paired in one process, median ratio per frame):
     # depth and ids 0.67, ambient 0.89-0.93, spot 0.88 (0.95 against a loop of its own for the light alone).
+    # Measured slower (same poses, paired with the loop below): t's division in the vectorised pass (numerator and
+    # |den| kept per pixel) 1.01-1.04 for depth and ids; the albedo in a branch-free pass of its own from the winner's
+    # record and kept barycentrics 1.30 (ambient), 1.28 (spot); every quotient and the colour terms kept per pixel
+    # for one vectorised pass 1.50; each pixel reading its winner's plane without branches 1.40 (depth and ids).
     depths = np.empty(width, np.float32)
     row_labels = np.empty(width, label_of_triangle.dtype)
     lights = np.zeros(width if spot else 1, np.float32)
