@@ -189,10 +189,11 @@ def _resolve_rows(corners, winner, pose, pixel_x, pixel_y, row_start, row_stop, 
     # blackens the colour of misses and, with `spot`, lights the rest; then the label runs are counted. Against one
     # loop doing it all per pixel (bench poses, 1 band, 1 thread, paired in one process, median ratio per frame):
     # depth and ids 0.67, ambient 0.89-0.93, spot 0.88 (0.95 against a loop of its own for the light alone).
-    # Measured slower (same poses, paired with the loop below): t's division in the vectorised pass (numerator and
-    # |den| kept per pixel) 1.01-1.04 for depth and ids; the albedo in a branch-free pass of its own from the winner's
-    # record and kept barycentrics 1.30 (ambient), 1.28 (spot); every quotient and the colour terms kept per pixel
-    # for one vectorised pass 1.50; each pixel reading its winner's plane without branches 1.40 (depth and ids).
+    # Measured slower (same poses, paired with c3aff85's loop, which this one takes 0.95-0.96 of): t's division in the
+    # vectorised pass (numerator and |den| kept per pixel) 1.00-1.04 for depth and ids; the albedo in a branch-free
+    # pass of its own from the winner's record and kept barycentrics 1.29-1.32 (ambient and spot); every quotient and
+    # the colour terms kept per pixel for one vectorised pass 1.49-1.53; each pixel reading its winner's plane and
+    # corner without branches 1.40-1.42 (depth and ids).
     depths = np.empty(width, np.float32)
     row_labels = np.empty(width, label_of_triangle.dtype)
     lights = np.zeros(width if spot else 1, np.float32)
