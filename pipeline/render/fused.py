@@ -18,10 +18,16 @@ Measured on the bench's 96 consecutive poses, paired with the general path pose 
 per frame from the pose to the segment statistics, median of 3 rounds, load ~4): ambient 28.8 -> 26.8 at 1
 thread, 28.5 -> 27.0 at 2; depth and ids alone 24.7 -> 23.9 and 25.0 -> 24.4. Most of the work is arithmetic
 (the intersection's divisions, the colour), which fusing only moves: the stores and loads it saves are cheap.
+
+A run's label and colour record are read by its winning (reordered) triangle from copies of the per-face tables in
+the mesh's cluster order (`by_triangle`): through the original face index they were scattered loads, mostly cache
+misses. Moving the divisions or the colour into branch-free passes of their own measured slower (see `_resolve_rows`).
 """
 
 from __future__ import annotations
 
+import threading
+import weakref
 from typing import TYPE_CHECKING
 
 import numba
@@ -33,11 +39,30 @@ from pipeline.render.raster import _column_terms, _intersect, _row_rays, _triang
 from pipeline.render.sensors import millimetres_of
 
 if TYPE_CHECKING:
-    from pipeline.render.raster import Rasterizer
+    from pipeline.render.raster import ClusteredMesh, Rasterizer
     from pipeline.render.renderer import RenderedFrame, SceneLabels
 
 _NO_RECORDS, _NO_RGB = np.zeros((1, 16), np.uint8), np.zeros((1, 1, 3), np.uint8)
 _NO_SCALE, _NO_DECODE, _NO_ENCODE = np.zeros((1, 1), np.float32), np.zeros(1, np.float32), np.zeros(1, np.uint8)
+
+
+_BY_TRIANGLE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # mesh -> [(per-face table, by triangle)]
+_BY_TRIANGLE_LOCK = threading.Lock()
+
+
+def by_triangle(mesh: ClusteredMesh, per_face: np.ndarray) -> np.ndarray:
+    """`per_face`'s rows in the order of `mesh`'s reordered triangles (`per_face[mesh.face_ids]`), taken once per mesh
+    and table. Why: the resolve reads a run's colour record and dense label by its winning triangle; through
+    `face_ids` they were scattered loads, mostly cache misses (original faces are in no spatial order), where a
+    cluster's triangles are neighbours in memory."""
+    with _BY_TRIANGLE_LOCK:  # (a frame's first bands ask at once: one builds, the others wait for it)
+        tables = _BY_TRIANGLE.setdefault(mesh, [])
+        for table, reordered in tables:
+            if table is per_face:
+                return reordered
+        reordered = np.ascontiguousarray(per_face[mesh.face_ids])
+        tables.append((per_face, reordered))
+        return reordered
 
 
 class FramePass:
@@ -71,17 +96,20 @@ class FramePass:
         """Resolve the winners of rows `rows` (drawn by `rasterizer.draw_band`) into the frame's buffers."""
         frame, mesh = self.frame, rasterizer.mesh
         areas, boxes = empty_boxes(len(self.labels.dense_ids), *frame.panoptic.shape)
-        arguments = (mesh.corners, mesh.face_ids, rasterizer.winner, np.ascontiguousarray(camera_to_world, np.float64),
+        arguments = (mesh.corners, rasterizer.winner, np.ascontiguousarray(camera_to_world, np.float64),
                      rasterizer.pixel_x, rasterizer.pixel_y, rows.start, rows.stop, self.near, self.far,
-                     self.labels.object_ids, self.labels.dense_of_face, frame.depth, frame.panoptic, areas, boxes)
+                     self.labels.dense_ids, by_triangle(mesh, self.labels.dense_of_face), frame.depth, frame.panoptic,
+                     areas, boxes)
         if self.colors is None:
             _resolve_depth_and_ids(*arguments)
-        elif self.spot_terms is not None:  # (flat colours too: a face of one colour takes the flat path)
-            _resolve_spot(*arguments, self.colors.records, frame.rgb, *self.spot_terms)
+            return self._counts.append((areas, boxes))  # (list.append is atomic: bands resolve on several threads)
+        records = by_triangle(mesh, self.colors.records)
+        if self.spot_terms is not None:  # (flat colours too: a face of one colour takes the flat path)
+            _resolve_spot(*arguments, records, frame.rgb, *self.spot_terms)
         elif self.colors.flat:
-            _resolve_flat(*arguments, self.colors.records, frame.rgb)
+            _resolve_flat(*arguments, records, frame.rgb)
         else:
-            _resolve_ambient(*arguments, self.colors.records, frame.rgb)
+            _resolve_ambient(*arguments, records, frame.rgb)
         self._counts.append((areas, boxes))  # (list.append is atomic: bands resolve on several threads)
 
     def segments(self) -> FrameSegments:
@@ -104,45 +132,47 @@ def _add_counts(areas, boxes, band_areas, band_boxes):  # pragma: no cover (comp
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _resolve_ambient(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, object_ids,
-                     dense_of_face, millimetres, panoptic, areas, boxes, records, rgb):  # pragma: no cover (compiled)
+def _resolve_ambient(corners, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, dense_ids,
+                     label_of_triangle, millimetres, panoptic, areas, boxes, records,
+                     rgb):  # pragma: no cover (compiled)
     """`_resolve_rows` with the ambient colour interpolated over the triangle."""
-    _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, object_ids,
-                  dense_of_face, millimetres, panoptic, areas, boxes, True, records, True, rgb, False, _NO_SCALE,
+    _resolve_rows(corners, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, dense_ids,
+                  label_of_triangle, millimetres, panoptic, areas, boxes, True, records, True, rgb, False, _NO_SCALE,
                   _NO_DECODE, _NO_ENCODE)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _resolve_spot(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, object_ids,
-                  dense_of_face, millimetres, panoptic, areas, boxes, records, rgb, scale_steps, decode,
+def _resolve_spot(corners, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, dense_ids,
+                  label_of_triangle, millimetres, panoptic, areas, boxes, records, rgb, scale_steps, decode,
                   encode):  # pragma: no cover (compiled)
     """`_resolve_rows` with the colour interpolated over the triangle and lit by the spot alone (`Shader.spot_terms`)."""
-    _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, object_ids,
-                  dense_of_face, millimetres, panoptic, areas, boxes, True, records, True, rgb, True, scale_steps,
+    _resolve_rows(corners, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, dense_ids,
+                  label_of_triangle, millimetres, panoptic, areas, boxes, True, records, True, rgb, True, scale_steps,
                   decode, encode)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _resolve_flat(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, object_ids,
-                  dense_of_face, millimetres, panoptic, areas, boxes, records, rgb):  # pragma: no cover (compiled)
+def _resolve_flat(corners, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, dense_ids,
+                  label_of_triangle, millimetres, panoptic, areas, boxes, records, rgb):  # pragma: no cover (compiled)
     """`_resolve_rows` with the ambient colour of flat-coloured faces."""
-    _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, object_ids,
-                  dense_of_face, millimetres, panoptic, areas, boxes, True, records, False, rgb, False, _NO_SCALE,
+    _resolve_rows(corners, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, dense_ids,
+                  label_of_triangle, millimetres, panoptic, areas, boxes, True, records, False, rgb, False, _NO_SCALE,
                   _NO_DECODE, _NO_ENCODE)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _resolve_depth_and_ids(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far,
-                           object_ids, dense_of_face, millimetres, panoptic, areas, boxes):  # pragma: no cover (compiled)
+def _resolve_depth_and_ids(corners, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far,
+                           dense_ids, label_of_triangle, millimetres, panoptic, areas,
+                           boxes):  # pragma: no cover (compiled)
     """`_resolve_rows` without colour: the barycentrics are never computed (the compiler drops them)."""
-    _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, object_ids,
-                  dense_of_face, millimetres, panoptic, areas, boxes, False, _NO_RECORDS, False, _NO_RGB, False,
+    _resolve_rows(corners, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, dense_ids,
+                  label_of_triangle, millimetres, panoptic, areas, boxes, False, _NO_RECORDS, False, _NO_RGB, False,
                   _NO_SCALE, _NO_DECODE, _NO_ENCODE)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, object_ids,
-                  dense_of_face, millimetres, panoptic, areas, boxes, colour, records, interpolate, rgb, spot,
+def _resolve_rows(corners, winner, pose, pixel_x, pixel_y, row_start, row_stop, near, far, dense_ids,
+                  label_of_triangle, millimetres, panoptic, areas, boxes, colour, records, interpolate, rgb, spot,
                   scale_steps, decode, encode):  # pragma: no cover (compiled)
     """Per pixel of rows row_start..row_stop: `raster._resolve`'s hit (its rays and intersection, same bits), a
     miss where it reports none or `VideoRenderer.trace` clips it, then what `renderer._depth_and_labels` and,
@@ -150,7 +180,8 @@ def _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, 
     `interpolate`; with `spot`, lit by the spot alone: the hit's unit normal, ray and depth as `raster._resolve`
     writes them) make of it; each row's runs of one dense label are counted into `areas` and `boxes` as
     `segments._areas_and_boxes` counts them. What depends on the triangle alone is taken once per run of pixels
-    it wins (~4 pixels on a bench frame)."""
+    it wins (~4 pixels on a bench frame): its corners, its dense label (`label_of_triangle`, then its id from
+    `dense_ids`) and its colour record, each by reordered triangle (`by_triangle`)."""
     width = len(pixel_x)
     steps = np.float32(len(encode) - 1)
     # A row in passes: a loop per pixel that branches only on its winner takes each pixel's t, id and label and, with
@@ -158,8 +189,13 @@ def _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, 
     # blackens the colour of misses and, with `spot`, lights the rest; then the label runs are counted. Against one
     # loop doing it all per pixel (bench poses, 1 band, 1 thread, paired in one process, median ratio per frame):
     # depth and ids 0.67, ambient 0.89-0.93, spot 0.88 (0.95 against a loop of its own for the light alone).
+    # Measured slower (same poses, paired with c3aff85's loop, which this one takes 0.95-0.96 of): t's division in the
+    # vectorised pass (numerator and |den| kept per pixel) 1.00-1.04 for depth and ids; the albedo in a branch-free
+    # pass of its own from the winner's record and kept barycentrics 1.29-1.32 (ambient and spot); every quotient and
+    # the colour terms kept per pixel for one vectorised pass 1.49-1.53; each pixel reading its winner's plane and
+    # corner without branches 1.40-1.42 (depth and ids).
     depths = np.empty(width, np.float32)
-    row_labels = np.empty(width, dense_of_face.dtype)
+    row_labels = np.empty(width, label_of_triangle.dtype)
     lights = np.zeros(width if spot else 1, np.float32)
     black = encode[0] if spot else np.uint8(0)  # a miss: no albedo, no light (the general path's encode[0])
     ox, oy, oz = np.float32(pose[0, 3]), np.float32(pose[1, 3]), np.float32(pose[2, 3])
@@ -167,7 +203,7 @@ def _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, 
     rays = np.empty((3, width), np.float32)
     terms = np.zeros((3, 3), np.float32)
     current, frame = -1, _triangle_frame(np.zeros((1, 3, 3), np.float32), 0, ox, oy, oz)
-    face, object_id, label, uniform = 0, object_ids[0], dense_of_face[0], True
+    object_id, label, uniform = dense_ids[0], label_of_triangle[0], True
     unit = (np.float32(0.0), np.float32(0.0), np.float32(0.0))
     for row in range(row_start, row_stop):
         _row_rays(column_terms, pose, pixel_y[row], rays)
@@ -177,10 +213,10 @@ def _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, 
             if triangle >= 0:
                 if triangle != current:
                     current, frame = triangle, _triangle_frame(corners, triangle, ox, oy, oz)
-                    face = face_ids[triangle]
-                    object_id, label = object_ids[face], dense_of_face[face]
+                    label = label_of_triangle[triangle]
+                    object_id = dense_ids[label]
                     if colour and interpolate:
-                        _face_terms(records, face, terms)
+                        _face_terms(records, triangle, terms)
                         uniform = _uniform(terms)
                     if spot:
                         unit = _unit_normal(frame)
@@ -201,7 +237,8 @@ def _resolve_rows(corners, face_ids, winner, pose, pixel_x, pixel_y, row_start, 
                 rgb[row, column, 1] = _albedo_of_terms(terms, 1, u, v)
                 rgb[row, column, 2] = _albedo_of_terms(terms, 2, u, v)
             elif colour:
-                rgb[row, column, 0], rgb[row, column, 1], rgb[row, column, 2] = records[face, 0], records[face, 1], records[face, 2]
+                for channel in range(3):
+                    rgb[row, column, channel] = records[triangle, channel]
         for column in range(width):
             hit = _kept(depths[column], near, far)
             millimetres[row, column] = millimetres_of(depths[column], near, far)  # (0 for any t not kept)
@@ -243,5 +280,5 @@ def _distance(frame, dx, dy, dz):  # pragma: no cover (compiled)
 def _uniform(terms):  # pragma: no cover (compiled)
     """Whether a face's colour terms (`_face_terms`) are one colour at every point: then its albedo is its first
     corner's colour, c0 + 0.5 + 0 u + 0 v truncated, for any finite barycentrics (half the bench house's faces)."""
-    return (terms[0, 1] == 0.0 and terms[0, 2] == 0.0 and terms[1, 1] == 0.0 and terms[1, 2] == 0.0
-            and terms[2, 1] == 0.0 and terms[2, 2] == 0.0)
+    return ((terms[0, 1] == 0.0) & (terms[0, 2] == 0.0) & (terms[1, 1] == 0.0) & (terms[1, 2] == 0.0)
+            & (terms[2, 1] == 0.0) & (terms[2, 2] == 0.0))

@@ -158,3 +158,19 @@ def test_hits_beyond_the_millimetres_range_keep_their_ids_and_colour(light: Illu
         assert np.array_equal(getattr(fused, name), getattr(general, name)), name
     assert _same_segments(fused.segments, segments)
     assert not fused.depth.any() and fused.panoptic.any() and fused.rgb[fused.panoptic > 0].any()
+
+
+def test_per_face_tables_are_read_by_reordered_triangle_taken_once_per_mesh_and_table() -> None:
+    from pipeline.render.fused import by_triangle
+    from pipeline.render.raster import ClusteredMesh
+
+    scene = _shaded_room()
+    mesh = ClusteredMesh(scene.vertices, scene.faces)
+    assert not np.array_equal(mesh.face_ids, np.arange(len(scene.faces)))  # (the Morton order moves faces)
+    labels, records = SceneLabels(scene).dense_of_face, SurfaceColors(scene).records
+    for table in (labels, records):
+        reordered = by_triangle(mesh, table)
+        np.testing.assert_array_equal(reordered, table[mesh.face_ids])
+        assert reordered.flags.c_contiguous and by_triangle(mesh, table) is reordered  # built once, then reused
+    other = ClusteredMesh(scene.vertices[::-1].copy(), (len(scene.vertices) - 1 - scene.faces)[:, ::-1].copy())
+    np.testing.assert_array_equal(by_triangle(other, labels), labels[other.face_ids])  # another mesh: its own order
