@@ -39,7 +39,8 @@ SMALL_BOX = 4  # pixels: a triangle's box of at most this many pixel centres is 
 # and 28 % fewer pixel tests on the bench's consecutive poses, while a larger box is rarely behind)
 PIXEL_BOX = 1024
 FACING_AWAY_RUN = 4  # facing-away triangles of a cluster, consecutive, whose joint box is tested before them
-# pixels per side of the finer occlusion level the facing-away pass tests its triangles against in bulk (`_hide_deferred`)
+# pixels per side of the finer occlusion level that small pixel boxes are proved hidden against in bulk (`_box_behind`;
+# TILE / 2: `_refresh_tiles` reads FINE_TILE pixels of a row at once, and `_box_behind` halves to reach TILE)
 FINE_TILE = 4
 # tiles per side of the window a triangle's pixel box must fit in to be proved hidden in bulk: 3 x 3 tested 4 %
 # less draw time than 2 x 2 on the bench's consecutive poses, 4 x 4 (more loads per triangle) 2 % more than 3 x 3
@@ -142,9 +143,9 @@ class Rasterizer:
                                    np.zeros(len(self.mesh.corners), np.bool_),
                                    np.empty(LANE_BLOCK, np.float32), np.empty(GEOMETRY_ROWS * CLUSTER_SIZE, np.float64),
                                    np.empty(len(self.mesh.corners), np.float32),
-                                   np.empty((len(self.mesh.corners), 4), np.int16),
-                                   np.empty((-(-(rows.stop - rows.start) // FINE_TILE), -(-len(self.pixel_x) // FINE_TILE)),
-                                            np.float32))
+                                   np.empty((len(self.mesh.corners), 4), np.int16),  # (Sensor: <= 8192 px a side)
+                                   np.empty((-(-(rows.stop - rows.start) // FINE_TILE),
+                                             -(-len(self.pixel_x) // FINE_TILE)), np.float32))
         _draw(self.mesh.lanes, self.mesh.planes, self.mesh.starts, self.order, self.rank, self.rects, self.nearest,
               np.ascontiguousarray(camera_to_world, np.float64), self.pixel_x, self.pixel_y, *self.focal, rows.start,
               rows.stop, self.inverse_depth, self.winner, *self._scratch[band])
@@ -531,7 +532,8 @@ def _defer(geometry, slot, rect, row_start, row_stop, closest, boxes, index):  #
         if top > bottom or left > right:
             return 0
         closest[index] = np.float32(1.0 / z_min * (1.0 + 1e-5))
-    boxes[index, 0], boxes[index, 1], boxes[index, 2], boxes[index, 3] = top - row_start, bottom - row_start, left, right
+    boxes[index, 0], boxes[index, 1] = top - row_start, bottom - row_start
+    boxes[index, 2], boxes[index, 3] = left, right
     return 1
 
 

@@ -24,16 +24,17 @@ def _random_triangles(rng: np.random.Generator, count: int) -> np.ndarray:
     return corners.astype(np.float32)
 
 
-def _z_buffer(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def _z_buffer() -> tuple[np.ndarray, np.ndarray]:
     """The inverse depths and winners that fronto-parallel walls at 1, 1.5 and 2 m leave, drawn by the
-    z-buffer's own arithmetic, with a gap through which nothing is seen; every winner is `owner`, a triangle
-    after all others in the drawing order (so a tie with it would change a winner)."""
+    z-buffer's own arithmetic, with a gap through which nothing is seen; every winner is triangle 10**6 - 1, which
+    comes after the triangles tested in the drawing order (so a tie with it would change a winner)."""
     from pipeline.render.raster import CLUSTER_SIZE, GEOMETRY_ROWS, ClusteredMesh, _draw_triangle, _prepare
 
     walls = []
     for depth, (x0, x1, y0, y1) in ((2.0, (-1.0, 0.3, -1.0, 1.0)), (1.5, (0.1, 1.2, -1.0, 0.2)),
                                     (1.0, (-0.2, 0.25, -0.1, 0.3))):
-        walls += [[[x0, y0, depth], [x1, y1, depth], [x1, y0, depth]], [[x0, y0, depth], [x0, y1, depth], [x1, y1, depth]]]
+        walls += [[[x0, y0, depth], [x1, y1, depth], [x1, y0, depth]],
+                  [[x0, y0, depth], [x0, y1, depth], [x1, y1, depth]]]
     walls = np.array(walls, np.float32)
     mesh = ClusteredMesh(walls.reshape(-1, 3), np.arange(walls.size // 3).reshape(-1, 3))
     inverse_depth = np.zeros((CAMERA.height, CAMERA.width), np.float32)
@@ -89,19 +90,18 @@ def _changes_the_frame(geometry: np.ndarray, slot: int, inverse_depth: np.ndarra
 
 
 def test_refreshed_tiles_hold_the_least_inverse_depth_of_their_pixels() -> None:
-    from pipeline.render.raster import FINE_TILE, TILE
+    from pipeline.render.raster import FINE_TILE, TILE, _refresh_tiles
 
     inverse_depth = np.random.default_rng(1).random((CAMERA.height, CAMERA.width - 3)).astype(np.float32)
     camera_width = inverse_depth.shape[1]  # 61: a last narrower column of tiles
     tiles = np.zeros((-(-CAMERA.height // TILE), -(-camera_width // TILE)), np.float32)
     dirty = np.ones_like(tiles, np.bool_)
     fine = np.zeros((-(-CAMERA.height // FINE_TILE), -(-camera_width // FINE_TILE)), np.float32)
-    from pipeline.render.raster import _refresh_tiles
-
     _refresh_tiles(0, CAMERA.height, inverse_depth, tiles, dirty, fine)
     for grid, side in ((tiles, TILE), (fine, FINE_TILE)):
         for row, column in np.ndindex(grid.shape):
-            assert grid[row, column] == inverse_depth[side * row:side * (row + 1), side * column:side * (column + 1)].min()
+            block = inverse_depth[side * row:side * (row + 1), side * column:side * (column + 1)]
+            assert grid[row, column] == block.min()
     assert not dirty.any()
 
 
@@ -112,7 +112,7 @@ def test_triangles_proved_hidden_in_bulk_would_change_no_pixel() -> None:
     from pipeline.render.raster import CLUSTER_SIZE, GEOMETRY_ROWS, ClusteredMesh, _hide_prepared, _prepare
 
     rng = np.random.default_rng(7)
-    inverse_depth, winner = _z_buffer(rng)
+    inverse_depth, winner = _z_buffer()
     tiles, fine = _refreshed(inverse_depth)
     corners = _random_triangles(rng, 20 * CLUSTER_SIZE)
     mesh = ClusteredMesh(corners.reshape(-1, 3), np.arange(corners.size // 3).reshape(-1, 3))
@@ -142,7 +142,7 @@ def test_deferred_triangles_proved_hidden_in_bulk_would_change_no_pixel() -> Non
     from pipeline.render.raster import CLUSTER_SIZE, GEOMETRY_ROWS, ClusteredMesh, _defer, _hide_deferred, _prepare
 
     rng = np.random.default_rng(11)
-    inverse_depth, winner = _z_buffer(rng)
+    inverse_depth, winner = _z_buffer()
     tiles, fine = _refreshed(inverse_depth)
     corners = _random_triangles(rng, 12 * CLUSTER_SIZE)
     mesh = ClusteredMesh(corners.reshape(-1, 3), np.arange(corners.size // 3).reshape(-1, 3))
