@@ -478,11 +478,10 @@ def _take_previous_winners(rank, row_start, row_stop, inverse_depth, winner, hin
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _drawn_before(triangle, other, starts, rank):  # pragma: no cover (compiled)
+def _drawn_before(triangle, other, rank):  # pragma: no cover (compiled)
     """True when `triangle` comes before `other` in the drawing order (clusters by rank, then index)."""
-    cluster = np.searchsorted(starts, triangle, side="right") - 1
-    other_cluster = np.searchsorted(starts, other, side="right") - 1
-    return (rank[cluster], triangle) < (rank[other_cluster], other)
+    # (ClusteredMesh's clusters hold CLUSTER_SIZE triangles each, so `starts` need not be searched)
+    return (rank[triangle // CLUSTER_SIZE], triangle) < (rank[other // CLUSTER_SIZE], other)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
@@ -669,6 +668,46 @@ def _draw_triangle(geometry, slot, triangle, rect, pixel_x, pixel_y, fx, fy, row
                        or box <= PIXEL_BOX and _pixels_occluded(top, bottom, left, right, min(a[2], b[2], c[2]),
                                                                 inverse_depth)):
             return
+    _fill_rows(a, b, c, det, triangle, top, bottom, left, right, pixel_x, pixel_y, fx, row_start, inverse_depth,
+               winner, dirty, rank)
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _pixels_occluded(top, bottom, left, right, nearest, inverse_depth):  # pragma: no cover (compiled)
+    """`_occluded` for a box of a few pixels (all in the band), pixel by pixel: cheaper than its tiles."""
+    closest = np.float32(1.0 / nearest * (1.0 + 1e-5))
+    for row in range(top, bottom + 1):
+        for column in range(left, right + 1):
+            if inverse_depth[row, column] < closest:
+                return False
+    return True
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _span(slope, inverse, offset, x_from, x_to):  # pragma: no cover (compiled)
+    """The interval [x_from, x_to] narrowed to where slope x + offset >= 0 (inverse: 1 / slope)."""
+    if slope > 0.0:
+        return max(x_from, -offset * inverse), x_to
+    if slope < 0.0:
+        return x_from, min(x_to, -offset * inverse)
+    return (x_from, -np.inf) if offset < 0.0 else (x_from, x_to)
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _reciprocal(value):  # pragma: no cover (compiled)
+    """1 / value, or 0 for 0 (an edge parallel to the rows bounds no column)."""
+    return 1.0 / value if value != 0.0 else 0.0
+
+
+NARROW_BOX = 6  # columns: a box narrower than this is tested column by column, without its rows' spans
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _fill_rows(a, b, c, det, triangle, top, bottom, left, right, pixel_x, pixel_y, fx, row_start, inverse_depth,
+               winner, dirty, rank):  # pragma: no cover (compiled)
+    """`_draw_triangle`'s pixel loop: z-buffer the triangle with corners a, b, c (camera frame, det = det(a, b, c)
+    != 0) into the pixels it covers of rows top..bottom, columns left..right (all in the band): it wins a pixel
+    it is nearer at, or as near as a triangle it comes before in the drawing order."""
     sign = 1.0 if det > 0.0 else -1.0
     e0, e1, e2 = _edge(a, b, sign), _edge(b, c, sign), _edge(c, a, sign)
     inverse_det = 1.0 / (det * sign)
@@ -680,7 +719,10 @@ def _draw_triangle(geometry, slot, triangle, rect, pixel_x, pixel_y, fx, fy, row
     # below |e[0]| SPAN_MARGIN / fx for any focal length under 1e5 px; for larger |z|, |x - z| ~ |z| dwarfs it.
     # A box of at most SMALL_BOX pixels is tested whole: its spans would skip only pixels that fail the test,
     # and their three divisions cost more than the pixels.
-    small = (bottom - top + 1) * (right - left + 1) <= SMALL_BOX
+    # So is a box narrower than NARROW_BOX columns with finite edges (a sliver along the columns: its spans
+    # would cost more than its few columns' tests; non-finite edges keep the spans, which skip their rows).
+    small = (bottom - top + 1) * (right - left + 1) <= SMALL_BOX or right - left < NARROW_BOX and _finite(
+        e0[0] + e0[1] + e0[2] + e1[0] + e1[1] + e1[2] + e2[0] + e2[1] + e2[2])
     inverse0, inverse1, inverse2 = (0.0, 0.0, 0.0) if small else (
         _reciprocal(e0[0]), _reciprocal(e1[0]), _reciprocal(e2[0]))
     for row in range(top, bottom + 1):
@@ -709,37 +751,16 @@ def _draw_triangle(geometry, slot, triangle, rect, pixel_x, pixel_y, fx, fy, row
             entered = True
             depth = np.float32((w0 + w1 + w2) * inverse_det)  # 1 / t: the plane's N . d over det(a, b, c)
             held = inverse_depth[row, column]
-            if depth > held or (depth == held and held > 0.0 and _drawn_before(triangle, winner[row, column], starts, rank)):
+            if depth > held or (depth == held and held > 0.0 and _drawn_before(triangle, winner[row, column], rank)):
                 inverse_depth[row, column] = depth
                 winner[row, column] = triangle
                 dirty[(row - row_start) // TILE, column // TILE] = True
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _pixels_occluded(top, bottom, left, right, nearest, inverse_depth):  # pragma: no cover (compiled)
-    """`_occluded` for a box of a few pixels (all in the band), pixel by pixel: cheaper than its tiles."""
-    closest = np.float32(1.0 / nearest * (1.0 + 1e-5))
-    for row in range(top, bottom + 1):
-        for column in range(left, right + 1):
-            if inverse_depth[row, column] < closest:
-                return False
-    return True
-
-
-@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _span(slope, inverse, offset, x_from, x_to):  # pragma: no cover (compiled)
-    """The interval [x_from, x_to] narrowed to where slope x + offset >= 0 (inverse: 1 / slope)."""
-    if slope > 0.0:
-        return max(x_from, -offset * inverse), x_to
-    if slope < 0.0:
-        return x_from, min(x_to, -offset * inverse)
-    return (x_from, -np.inf) if offset < 0.0 else (x_from, x_to)
-
-
-@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _reciprocal(value):  # pragma: no cover (compiled)
-    """1 / value, or 0 for 0 (an edge parallel to the rows bounds no column)."""
-    return 1.0 / value if value != 0.0 else 0.0
+def _finite(value):  # pragma: no cover (compiled)
+    """True when `value` is neither infinite nor NaN (a sum of numbers is finite only when each of them is)."""
+    return value - value == 0.0
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
