@@ -48,6 +48,7 @@ _NO_SCALE, _NO_DECODE, _NO_ENCODE = np.zeros((1, 1), np.float32), np.zeros(1, np
 
 _BY_TRIANGLE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # mesh -> [(per-face table, by triangle)]
 _BY_TRIANGLE_LOCK = threading.Lock()
+_TABLES_PER_MESH = 4  # the newest reordered tables kept per mesh (a render stage uses 2: labels and colours)
 
 
 def by_triangle(mesh: ClusteredMesh, per_face: np.ndarray) -> np.ndarray:
@@ -62,6 +63,7 @@ def by_triangle(mesh: ClusteredMesh, per_face: np.ndarray) -> np.ndarray:
                 return reordered
         reordered = np.ascontiguousarray(per_face[mesh.face_ids])
         tables.append((per_face, reordered))
+        del tables[:-_TABLES_PER_MESH]  # (renderers built with tables of their own must not pile copies up)
         return reordered
 
 

@@ -316,7 +316,7 @@ def _draw(lanes, planes, starts, order, rank, rects, nearest, pose, pixel_x, pix
             cluster = triangle // CLUSTER_SIZE
             rect = (rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3])
             _draw_triangle(geometry, slot, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop,
-                           inverse_depth, winner, tiles, dirty, starts, rank, False)
+                           inverse_depth, winner, tiles, dirty, rank, False)
     _refresh_tiles(row_start, row_stop, inverse_depth, tiles, dirty, fine)
     skip = np.empty(CLUSTER_SIZE, np.bool_)
     ox, oy, oz = pose[0, 3], pose[1, 3], pose[2, 3]
@@ -342,7 +342,7 @@ def _draw(lanes, planes, starts, order, rank, rects, nearest, pose, pixel_x, pix
                                 deferred_boxes, count)
                 continue
             _draw_triangle(geometry, triangle - first, triangle, rect, pixel_x, pixel_y, fx, fy, row_start,
-                           row_stop, inverse_depth, winner, tiles, dirty, starts, rank, True)
+                           row_stop, inverse_depth, winner, tiles, dirty, rank, True)
         if count > group_start:
             groups[group_count, 0], groups[group_count, 1] = cluster, count
             group_count += 1
@@ -363,7 +363,7 @@ def _draw(lanes, planes, starts, order, rank, rects, nearest, pose, pixel_x, pix
                 continue
             for slot in range(run, run_stop):
                 _draw_triangle(geometry, slot - group_start, deferred[slot], rect, pixel_x, pixel_y, fx, fy, row_start,
-                               row_stop, inverse_depth, winner, tiles, dirty, starts, rank, True)
+                               row_stop, inverse_depth, winner, tiles, dirty, rank, True)
         group_start = group_stop
     for triangle in hints[:hint_count]:
         drawn[triangle] = False
@@ -635,7 +635,7 @@ def _window_least(grid, top, bottom, left, right):  # pragma: no cover (compiled
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
 def _draw_triangle(geometry, slot, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop, inverse_depth,
-                   winner, tiles, dirty, starts, rank, cull):  # pragma: no cover (compiled)
+                   winner, tiles, dirty, rank, cull):  # pragma: no cover (compiled)
     """Z-buffer one triangle (set up in column `slot` of `geometry` by `_prepare`: corners a, b, c relative to
     the camera, camera frame, det = det(a, b, c), its projection's box) into the band's pixels: it wins a pixel
     it is nearer at, or as near as a triangle it comes before in the drawing order. With `cull`, it is first

@@ -44,7 +44,7 @@ def _z_buffer() -> tuple[np.ndarray, np.ndarray]:
     tiles, dirty = _tiles()
     for slot in range(len(walls)):
         _draw_triangle(geometry, slot, slot, _whole(), *CAMERA.pixel_axes(), CAMERA.fx, CAMERA.fy, 0, CAMERA.height,
-                       inverse_depth, winner, tiles, dirty, np.array([0, 10**6]), np.zeros(1, np.int64), False)
+                       inverse_depth, winner, tiles, dirty, np.zeros(1, np.int64), False)
     assert (inverse_depth == 0).sum() > 100 and len(np.unique(inverse_depth)) > 3
     return inverse_depth, np.where(winner >= 0, 10**6 - 1, -1)
 
@@ -85,7 +85,7 @@ def _changes_the_frame(geometry: np.ndarray, slot: int, inverse_depth: np.ndarra
     depth, won = inverse_depth.copy(), winner.copy()
     tiles, dirty = _tiles()
     _draw_triangle(geometry, slot, 0, _whole(), *CAMERA.pixel_axes(), CAMERA.fx, CAMERA.fy, 0, CAMERA.height, depth,
-                   won, tiles, dirty, np.array([0, 10**6]), np.zeros(1, np.int64), False)
+                   won, tiles, dirty, np.zeros(1, np.int64), False)
     return not (np.array_equal(depth, inverse_depth) and np.array_equal(won, winner))
 
 

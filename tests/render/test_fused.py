@@ -174,3 +174,14 @@ def test_per_face_tables_are_read_by_reordered_triangle_taken_once_per_mesh_and_
         assert reordered.flags.c_contiguous and by_triangle(mesh, table) is reordered  # built once, then reused
     other = ClusteredMesh(scene.vertices[::-1].copy(), (len(scene.vertices) - 1 - scene.faces)[:, ::-1].copy())
     np.testing.assert_array_equal(by_triangle(other, labels), labels[other.face_ids])  # another mesh: its own order
+
+
+def test_reordered_tables_kept_per_mesh_are_bounded() -> None:
+    from pipeline.render.fused import _BY_TRIANGLE, _TABLES_PER_MESH, by_triangle
+    from pipeline.render.raster import ClusteredMesh
+
+    scene = _shaded_room()
+    mesh = ClusteredMesh(scene.vertices, scene.faces)
+    for _ in range(3 * _TABLES_PER_MESH):  # renderers that each bring labels of their own
+        by_triangle(mesh, SceneLabels(scene).dense_of_face)
+    assert len(_BY_TRIANGLE[mesh]) == _TABLES_PER_MESH
