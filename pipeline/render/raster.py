@@ -34,6 +34,7 @@ CLUSTER_SIZE = 64  # triangles per cluster: small boxes cull well, and 16 k clus
 TILE = 8  # pixels per side of the occlusion tiles
 SPAN_MARGIN = 1e-3  # pixels: a row's columns are tested this far beyond its edges' zeros (see _draw_triangle)
 SMALL_BOX = 4  # pixels: a triangle's box of at most this many pixel centres is tested pixel by pixel
+NARROW_BOX = 6  # columns: a box narrower than this is tested column by column, without its rows' spans
 # pixels: a triangle's box of at most this many pixel centres whose tiles are not all behind is tested pixel by pixel
 # (a triangle whose tiles straddle a depth edge is often behind every pixel of its own box: 36 % fewer edge set-ups
 # and 28 % fewer pixel tests on the bench's consecutive poses, while a larger box is rarely behind)
@@ -304,8 +305,6 @@ def _draw(lanes, planes, starts, order, rank, rects, nearest, pose, pixel_x, pix
     CLUSTER_SIZE) hold a batch's corners and set-up, `deferred_closest` and `deferred_boxes` (one slot per triangle)
     what `_defer` keeps of each deferred triangle, and `fine` the band's FINE_TILE tiles."""
     hint_count = _take_previous_winners(rank, row_start, row_stop, inverse_depth, winner, hints, drawn)
-    tiles[:, :] = 0.0
-    dirty[:, :] = False
     x0, y0 = pixel_x[0], pixel_y[0]
     for batch in range(0, hint_count, CLUSTER_SIZE):
         batch_stop = min(batch + CLUSTER_SIZE, hint_count)
@@ -697,9 +696,6 @@ def _span(slope, inverse, offset, x_from, x_to):  # pragma: no cover (compiled)
 def _reciprocal(value):  # pragma: no cover (compiled)
     """1 / value, or 0 for 0 (an edge parallel to the rows bounds no column)."""
     return 1.0 / value if value != 0.0 else 0.0
-
-
-NARROW_BOX = 6  # columns: a box narrower than this is tested column by column, without its rows' spans
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
