@@ -63,3 +63,44 @@ def test_the_previous_winners_are_taken_once_each_in_the_order_they_first_appear
         outside = np.ones(len(winner), bool)
         outside[row_start:row_stop] = False
         assert np.array_equal(emptied[outside], winner[outside]) and (inverse_depth[outside] == 1.0).all()
+
+
+def test_the_winners_pass_draws_what_the_general_draw_does_without_culls_and_flags_no_tile() -> None:
+    """`_draw_previous_winner` against `_draw_triangle` without culls, on random triangles (slivers, degenerate ones,
+    corners behind the camera or across its plane, ties and near-ties of depth, exact copies under other indices
+    and clusters of other ranks, drawn in a shuffled order, in a band and in the whole frame): the same inverse
+    depths and winners bit for bit after every triangle, and no tile flagged dirty (the general draw flags some)."""
+    from pipeline.render.raster import (CLUSTER_SIZE, GEOMETRY_ROWS, _draw_previous_winner, _draw_triangle, _gather,
+                                        _prepare)
+    from tests.render.test_bulk_proofs import CAMERA, _origin_and_focal, _random_triangles, _tiles
+
+    rng = np.random.default_rng(11)
+    corners = _random_triangles(rng, 5 * CLUSTER_SIZE)
+    corners[CLUSTER_SIZE:2 * CLUSTER_SIZE] = corners[:CLUSTER_SIZE]  # copies: ties at every pixel they cover
+    corners[3 * CLUSTER_SIZE:4 * CLUSTER_SIZE:2] = corners[2 * CLUSTER_SIZE:3 * CLUSTER_SIZE:2]
+    mesh = ClusteredMesh(corners.reshape(-1, 3), np.arange(corners.size // 3).reshape(-1, 3))
+    rank = rng.permutation(len(mesh.starts) - 1)
+    pixel_x, pixel_y = CAMERA.pixel_axes()
+    for row_start, row_stop in ((0, CAMERA.height), (13, 37)):
+        depths = [np.zeros((CAMERA.height, CAMERA.width), np.float32) for _ in range(2)]
+        winners = [np.full((CAMERA.height, CAMERA.width), -1, np.int32) for _ in range(2)]
+        flags = [_tiles()[1] for _ in range(2)]
+        tiles = _tiles()[0]
+        order = rng.permutation(len(corners)).astype(np.int32)
+        batch, geometry = np.empty(9 * CLUSTER_SIZE, np.float32), np.empty(GEOMETRY_ROWS * CLUSTER_SIZE)
+        for start in range(0, len(order), CLUSTER_SIZE):
+            triangles = order[start:start + CLUSTER_SIZE]
+            _gather(mesh.lanes, triangles, batch)
+            _prepare(batch, 0, len(triangles), np.eye(4), *_origin_and_focal(), geometry)
+            for slot, triangle in enumerate(triangles):
+                rect = (0, CAMERA.height - 1, 0, CAMERA.width - 1)
+                _draw_triangle(geometry, slot, triangle, rect, pixel_x, pixel_y, CAMERA.fx, CAMERA.fy, row_start,
+                               row_stop, depths[0], winners[0], tiles, flags[0], rank, False)
+                _draw_previous_winner(geometry, slot, triangle, rect, pixel_x, pixel_y, CAMERA.fx, row_start,
+                                      row_stop, depths[1], winners[1], flags[1], rank)
+                assert np.array_equal(depths[0].view(np.int32), depths[1].view(np.int32))
+                assert np.array_equal(winners[0], winners[1])
+        assert flags[0].any() and not flags[1].any()
+        drawn = winners[0][row_start:row_stop] >= 0
+        assert drawn.mean() > 0.3 and (winners[0] >= CLUSTER_SIZE).any()
+        assert (winners[0][:row_start] == -1).all() and (winners[0][row_stop:] == -1).all()
