@@ -325,8 +325,8 @@ def _draw(lanes, planes, starts, order, rank, rects, nearest, pose, pixel_x, pix
             triangle = hints[batch + slot]
             cluster = triangle // CLUSTER_SIZE
             rect = (rects[cluster, 0], rects[cluster, 1], rects[cluster, 2], rects[cluster, 3])
-            _draw_previous_winner(geometry, slot, triangle, rect, pixel_x, pixel_y, fx, row_start, row_stop,
-                                  inverse_depth, winner, dirty, rank)
+            _draw_triangle(geometry, slot, triangle, rect, pixel_x, pixel_y, fx, fy, row_start, row_stop,
+                           inverse_depth, winner, tiles, dirty, rank, False)
     _refresh_tiles(row_start, row_stop, inverse_depth, tiles, dirty, fine)
     skip = np.empty(CLUSTER_SIZE, np.bool_)
     ox, oy, oz = pose[0, 3], pose[1, 3], pose[2, 3]
@@ -714,36 +714,7 @@ def _fill_rows(a, b, c, det, triangle, top, bottom, left, right, pixel_x, pixel_
                winner, dirty, rank):  # pragma: no cover (compiled)
     """`_draw_triangle`'s pixel loop: z-buffer the triangle with corners a, b, c (camera frame, det = det(a, b, c)
     != 0) into the pixels it covers of rows top..bottom, columns left..right (all in the band): it wins a pixel
-    it is nearer at, or as near as a triangle it comes before in the drawing order (its tile flagged `dirty`)."""
-    _fill_pixels(a, b, c, det, triangle, top, bottom, left, right, pixel_x, pixel_y, fx, row_start, inverse_depth,
-                 winner, dirty, rank, True)
-
-
-@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _draw_previous_winner(geometry, slot, triangle, rect, pixel_x, pixel_y, fx, row_start, row_stop, inverse_depth,
-                          winner, dirty, rank):  # pragma: no cover (compiled)
-    """`_draw_triangle` without its culls, for a triangle of the winners' pass: the same pixels, won by the same
-    rule, but no tile flagged in `dirty` (the `_refresh_tiles` right after that pass sets every tile and flag;
-    the winners' pass takes 0.95-0.965 of its time with the flags' stores, bench poses)."""
-    a, b, c, det, projected = _prepared(geometry, slot)
-    if det == 0.0 or a[2] <= 0.0 and b[2] <= 0.0 and c[2] <= 0.0:
-        return  # degenerate, seen exactly edge-on, or behind the camera
-    top, bottom = max(rect[0], row_start), min(rect[1], row_stop - 1)
-    left, right = rect[2], rect[3]
-    if a[2] > _BEHIND and b[2] > _BEHIND and c[2] > _BEHIND:
-        top, bottom = max(top, int(projected[0])), min(bottom, int(projected[1]))
-        left, right = max(left, int(projected[2])), min(right, int(projected[3]))
-        if top > bottom or left > right:
-            return
-    _fill_pixels(a, b, c, det, triangle, top, bottom, left, right, pixel_x, pixel_y, fx, row_start, inverse_depth,
-                 winner, dirty, rank, False)
-
-
-@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
-def _fill_pixels(a, b, c, det, triangle, top, bottom, left, right, pixel_x, pixel_y, fx, row_start, inverse_depth,
-                 winner, dirty, rank, flag_dirty):  # pragma: no cover (compiled)
-    """`_fill_rows`, flagging the tiles of the pixels won in `dirty` only when `flag_dirty` (a constant where it is
-    called: the compiler drops the stores without it)."""
+    it is nearer at, or as near as a triangle it comes before in the drawing order."""
     sign = 1.0 if det > 0.0 else -1.0
     e0, e1, e2 = _edge(a, b, sign), _edge(b, c, sign), _edge(c, a, sign)
     inverse_det = 1.0 / (det * sign)
@@ -790,8 +761,7 @@ def _fill_pixels(a, b, c, det, triangle, top, bottom, left, right, pixel_x, pixe
             if depth > held or (depth == held and held > 0.0 and _drawn_before(triangle, winner[row, column], rank)):
                 inverse_depth[row, column] = depth
                 winner[row, column] = triangle
-                if flag_dirty:
-                    dirty[(row - row_start) // TILE, column // TILE] = True
+                dirty[(row - row_start) // TILE, column // TILE] = True
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
