@@ -1,11 +1,11 @@
-"""The previous winners' pass of the z-buffer (raster._draw's first phase): its buffers and its own pixel loop."""
+"""The previous winners' pass of the z-buffer (raster._draw's first phase): its buffers and how it takes the winners."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from pipeline.render.raster import ClusteredMesh, Rasterizer, _triangle_index_type
+from pipeline.render.raster import ClusteredMesh, Rasterizer
 from pipeline.render.raycaster import Camera
 
 
@@ -13,6 +13,8 @@ def test_winners_are_int32_and_a_mesh_beyond_int32_indices_is_refused_in_one_lin
     """The winners (and the hints gathered from them) are int32: half the bytes every pass and the resolve move.
     A mesh whose triangle indices int32 cannot hold is refused before any buffer is made, in one line naming its
     size and the fix."""
+    from pipeline.render.raster import _triangle_index_type
+
     assert _triangle_index_type(2**31) is np.int32  # indices 0 .. 2**31 - 1, and -1 for none
     with pytest.raises(ValueError) as refused:
         _triangle_index_type(2**31 + 1)
