@@ -116,7 +116,9 @@ class Rasterizer:
         self.pixel_y = np.ascontiguousarray(pixel_y, np.float64)
         height, width = len(pixel_y), len(pixel_x)
         self.inverse_depth = np.empty((height, width), np.float32)
-        self.winner = np.full((height, width), -1, np.int64)  # the previous frame's, until a band is drawn anew
+        # The previous frame's winners, until a band is drawn anew. int32: every pass and the resolve read and write
+        # them, and a band's z-buffer and winners (1.8 MB with int64 ones on the bench) then fit a 2 MB L2 with room.
+        self.winner = np.full((height, width), -1, _triangle_index_type(len(mesh.corners)))
         # Per band of rows: occlusion tiles, their dirty flags, and `_draw`'s scratch space.
         self._scratch: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
         self.order = np.empty(0, np.int64)
@@ -140,7 +142,7 @@ class Rasterizer:
             shape = (-(-(rows.stop - rows.start) // TILE), -(-len(self.pixel_x) // TILE))
             self._scratch[band] = (np.empty(shape, np.float32), np.empty(shape, np.bool_),
                                    np.empty(len(self.mesh.corners), np.int64), np.empty_like(self.rects[:, :2]),
-                                   np.empty((rows.stop - rows.start) * len(self.pixel_x), np.int64),
+                                   np.empty((rows.stop - rows.start) * len(self.pixel_x), self.winner.dtype),
                                    np.zeros(len(self.mesh.corners), np.bool_),
                                    np.empty(LANE_BLOCK, np.float32), np.empty(GEOMETRY_ROWS * CLUSTER_SIZE, np.float64),
                                    np.empty(len(self.mesh.corners), np.float32),
@@ -158,6 +160,15 @@ class Rasterizer:
         directions are left as they were (ambient light with an ideal sensor reads neither: ~7 MB of stores a frame)."""
         _resolve(self.mesh.corners, self.mesh.face_ids, self.winner, np.ascontiguousarray(camera_to_world, np.float64),
                  self.pixel_x, self.pixel_y, rows.start, rows.stop, miss, *out, surfaces)
+
+
+def _triangle_index_type(triangles: int) -> type:
+    """int32, the type of the z-buffer's winners (reordered triangle indices, -1 for none), or a ValueError for a
+    mesh with more triangles than int32 can index."""
+    if triangles > 2**31:
+        raise ValueError(f"the mesh has {triangles} triangles; the rasterizer indexes at most 2**31 (2147483648): "
+                         "split the scene's mesh into parts of at most that many")
+    return np.int32
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
