@@ -49,6 +49,10 @@ WINDOW = 3
 GEOMETRY_ROWS = 14  # numbers `_prepare` sets up per triangle
 LANE_BLOCK = 9 * CLUSTER_SIZE  # a cluster's corners in `ClusteredMesh.lanes`
 _BEHIND = 1e-6  # metres: a cluster corner nearer than this to the camera plane makes the cluster cover the image
+# pixels: a triangle's box of at most this many pixels is proved hidden by its pixels alone, without the occlusion tiles
+# first (which prove only what the pixels prove, and refresh stale tiles on the way): draw 0.95 of the tiles-first
+# order's (bench poses, draw over resolve in one process, 3 process pairs; 32: 0.98, 512: 0.99)
+PIXELS_FIRST_BOX = 128
 
 
 class ClusteredMesh:
@@ -645,9 +649,9 @@ def _draw_triangle(geometry, slot, triangle, rect, pixel_x, pixel_y, fx, fy, row
                    winner, tiles, dirty, rank, cull):  # pragma: no cover (compiled)
     """Z-buffer one triangle (set up in column `slot` of `geometry` by `_prepare`: corners a, b, c relative to
     the camera, camera frame, det = det(a, b, c), its projection's box) into the band's pixels: it wins a pixel
-    it is nearer at, or as near as a triangle it comes before in the drawing order. With `cull`, it is first
-    tested against the occlusion tiles (when it covers more than a few pixel centres), then against the pixels of
-    its box (when the tiles do not cull it and the box is under PIXEL_BOX).
+    it is nearer at, or as near as a triangle it comes before in the drawing order. With `cull`, a box of at most
+    PIXELS_FIRST_BOX pixels is tested against its pixels; a larger one against the occlusion tiles, then against
+    the pixels of its box (when the tiles do not cull it and the box is under PIXEL_BOX).
 
     The edge planes are scaled by the sign of det(a, b, c), so that inside means all three edge values >= 0.
     Negation is exact in floating point (x * -1 and -(x y + z) = (-x) y + (-z) bit for bit, but for the sign
@@ -667,7 +671,7 @@ def _draw_triangle(geometry, slot, triangle, rect, pixel_x, pixel_y, fx, fy, row
         if top > bottom or left > right:
             return
         box = (bottom - top + 1) * (right - left + 1)
-        if cull and box <= SMALL_BOX:
+        if cull and box <= PIXELS_FIRST_BOX:
             if _pixels_occluded(top, bottom, left, right, min(a[2], b[2], c[2]), inverse_depth):
                 return
         elif cull and (_occluded((top, bottom, left, right), min(a[2], b[2], c[2]), row_start, row_stop, inverse_depth,

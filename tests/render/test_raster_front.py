@@ -51,3 +51,37 @@ def test_hide_prepared_flags_what_the_branch_free_formula_flags() -> None:
         flags += expected
     # Both outcomes occur often (the test would notice a proof that flags everything or nothing).
     assert 0.2 < np.mean(flags) < 0.9
+
+
+def test_culled_triangles_change_no_pixel() -> None:
+    """`_draw_triangle`'s culls (pixels alone for a box of at most PIXELS_FIRST_BOX pixels, else the occlusion tiles,
+    stale or not, then the pixels) never cull a winner: drawing each random triangle with them leaves the z-buffer
+    as drawing it without them does, ties included (boxes of both sizes, some tiles stale and dirty)."""
+    from pipeline.render.raster import CLUSTER_SIZE, GEOMETRY_ROWS, PIXELS_FIRST_BOX, ClusteredMesh, _draw_triangle, \
+        _prepare
+
+    rng = np.random.default_rng(8)
+    inverse_depth, winner = _z_buffer()
+    tiles, _ = _refreshed(inverse_depth)
+    stale = np.where(rng.random(tiles.shape) < 0.5, tiles * np.float32(0.5), tiles)  # lower: stale, left dirty
+    dirty = stale != tiles
+    corners = _random_triangles(rng, 16 * CLUSTER_SIZE)
+    mesh = ClusteredMesh(corners.reshape(-1, 3), np.arange(corners.size // 3).reshape(-1, 3))
+    geometry = np.empty(GEOMETRY_ROWS * CLUSTER_SIZE)
+    boxes = []
+    for cluster in range(len(mesh.starts) - 1):
+        _prepare(mesh.lanes, cluster * CLUSTER_SIZE * 9, CLUSTER_SIZE, np.eye(4), *_origin_and_focal(), geometry)
+        for slot in range(CLUSTER_SIZE):
+            frames = []
+            for cull in (True, False):
+                depth, won = inverse_depth.copy(), winner.copy()
+                cull_tiles, cull_dirty = stale.copy(), dirty.copy()
+                _draw_triangle(geometry, slot, 0, _whole(), *CAMERA.pixel_axes(), CAMERA.fx, CAMERA.fy, 0,
+                               CAMERA.height, depth, won, cull_tiles, cull_dirty, np.zeros(1, np.int64), cull)
+                frames.append((depth, won))
+            (culled_depth, culled_won), (depth, won) = frames
+            assert np.array_equal(culled_depth, depth) and np.array_equal(culled_won, won), (cluster, slot)
+            top, bottom, left, right = (geometry[(10 + k) * CLUSTER_SIZE + slot] for k in range(4))
+            boxes.append((bottom - top + 1) * (right - left + 1))
+    boxes = np.array(boxes)
+    assert ((boxes > 4) & (boxes <= PIXELS_FIRST_BOX)).sum() > 50 and (boxes > PIXELS_FIRST_BOX).sum() > 50
