@@ -4,9 +4,23 @@ flags, so that the frame is unchanged (random triangles against a z-buffer of wa
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 
 from tests.render.test_bulk_proofs import CAMERA, _origin_and_focal, _random_triangles, _refreshed, _whole, _z_buffer
+
+
+def _prepared_clusters(rng: np.random.Generator, clusters: int) -> Iterator[tuple[int, np.ndarray]]:
+    """(cluster, its random triangles' set-up by `_prepare`, seen from the origin), for `clusters` clusters."""
+    from pipeline.render.raster import CLUSTER_SIZE, GEOMETRY_ROWS, ClusteredMesh, _prepare
+
+    corners = _random_triangles(rng, clusters * CLUSTER_SIZE)
+    mesh = ClusteredMesh(corners.reshape(-1, 3), np.arange(corners.size // 3).reshape(-1, 3))
+    geometry = np.empty(GEOMETRY_ROWS * CLUSTER_SIZE)
+    for cluster in range(clusters):
+        _prepare(mesh.lanes, cluster * CLUSTER_SIZE * 9, CLUSTER_SIZE, np.eye(4), *_origin_and_focal(), geometry)
+        yield cluster, geometry
 
 
 def _flagged_by_formula(geometry: np.ndarray, slot: int, drawn: bool, tiles: np.ndarray, fine: np.ndarray) -> bool:
@@ -32,17 +46,13 @@ def _flagged_by_formula(geometry: np.ndarray, slot: int, drawn: bool, tiles: np.
 
 
 def test_hide_prepared_flags_what_the_branch_free_formula_flags() -> None:
-    from pipeline.render.raster import CLUSTER_SIZE, GEOMETRY_ROWS, ClusteredMesh, _hide_prepared, _prepare
+    from pipeline.render.raster import CLUSTER_SIZE, _hide_prepared
 
     rng = np.random.default_rng(31)
     inverse_depth, _ = _z_buffer()
     tiles, fine = _refreshed(inverse_depth)
-    corners = _random_triangles(rng, 24 * CLUSTER_SIZE)
-    mesh = ClusteredMesh(corners.reshape(-1, 3), np.arange(corners.size // 3).reshape(-1, 3))
-    geometry = np.empty(GEOMETRY_ROWS * CLUSTER_SIZE)
     flags = []
-    for cluster in range(len(mesh.starts) - 1):
-        _prepare(mesh.lanes, cluster * CLUSTER_SIZE * 9, CLUSTER_SIZE, np.eye(4), *_origin_and_focal(), geometry)
+    for cluster, geometry in _prepared_clusters(rng, 24):
         drawn = rng.random(CLUSTER_SIZE) < 0.2
         skip = np.zeros(CLUSTER_SIZE, np.bool_)
         _hide_prepared(geometry, CLUSTER_SIZE, _whole(), 0, CAMERA.height, drawn, tiles, fine, skip)
@@ -57,20 +67,15 @@ def test_culled_triangles_change_no_pixel() -> None:
     """`_draw_triangle`'s culls (pixels alone for a box of at most PIXELS_FIRST_BOX pixels, else the occlusion tiles,
     stale or not, then the pixels) never cull a winner: drawing each random triangle with them leaves the z-buffer
     as drawing it without them does, ties included (boxes of both sizes, some tiles stale and dirty)."""
-    from pipeline.render.raster import CLUSTER_SIZE, GEOMETRY_ROWS, PIXELS_FIRST_BOX, ClusteredMesh, _draw_triangle, \
-        _prepare
+    from pipeline.render.raster import CLUSTER_SIZE, PIXELS_FIRST_BOX, _draw_triangle
 
     rng = np.random.default_rng(8)
     inverse_depth, winner = _z_buffer()
     tiles, _ = _refreshed(inverse_depth)
     stale = np.where(rng.random(tiles.shape) < 0.5, tiles * np.float32(0.5), tiles)  # lower: stale, left dirty
     dirty = stale != tiles
-    corners = _random_triangles(rng, 16 * CLUSTER_SIZE)
-    mesh = ClusteredMesh(corners.reshape(-1, 3), np.arange(corners.size // 3).reshape(-1, 3))
-    geometry = np.empty(GEOMETRY_ROWS * CLUSTER_SIZE)
     boxes = []
-    for cluster in range(len(mesh.starts) - 1):
-        _prepare(mesh.lanes, cluster * CLUSTER_SIZE * 9, CLUSTER_SIZE, np.eye(4), *_origin_and_focal(), geometry)
+    for cluster, geometry in _prepared_clusters(rng, 16):
         for slot in range(CLUSTER_SIZE):
             frames = []
             for cull in (True, False):
