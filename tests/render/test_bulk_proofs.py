@@ -65,27 +65,29 @@ def _tiles() -> tuple[np.ndarray, np.ndarray]:
     return np.zeros(shape, np.float32), np.zeros(shape, np.bool_)
 
 
-def _refreshed(inverse_depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The occlusion tiles and the fine tiles of the whole frame as one band, refreshed."""
-    from pipeline.render.raster import FINE_TILE, _refresh_tiles
+def _refreshed(inverse_depth: np.ndarray, band: tuple[int, int] = (0, CAMERA.height)) -> tuple[np.ndarray, np.ndarray]:
+    """The occlusion tiles and the fine tiles of the rows `band` (by default the whole frame as one band), refreshed."""
+    from pipeline.render.raster import FINE_TILE, TILE, _refresh_tiles
 
-    tiles, dirty = _tiles()
-    dirty[:] = True
-    fine = np.full((-(-CAMERA.height // FINE_TILE), -(-CAMERA.width // FINE_TILE)), np.nan, np.float32)
-    _refresh_tiles(0, CAMERA.height, inverse_depth, tiles, dirty, fine)
+    rows = band[1] - band[0]
+    tiles = np.zeros((-(-rows // TILE), -(-CAMERA.width // TILE)), np.float32)
+    dirty = np.ones(tiles.shape, np.bool_)
+    fine = np.full((-(-rows // FINE_TILE), -(-CAMERA.width // FINE_TILE)), np.nan, np.float32)
+    _refresh_tiles(*band, inverse_depth, tiles, dirty, fine)
     assert not dirty.any()
     return tiles, fine
 
 
-def _changes_the_frame(geometry: np.ndarray, slot: int, inverse_depth: np.ndarray, winner: np.ndarray) -> bool:
-    """Whether drawing the prepared triangle of `slot` (before the z-buffer's owner in the drawing order), without
-    any occlusion test, changes a pixel's inverse depth or winner."""
+def _changes_the_frame(geometry: np.ndarray, slot: int, inverse_depth: np.ndarray, winner: np.ndarray,
+                       band: tuple[int, int] = (0, CAMERA.height)) -> bool:
+    """Whether drawing the prepared triangle of `slot` into the rows `band` (before the z-buffer's owner in the
+    drawing order), without any occlusion test, changes a pixel's inverse depth or winner."""
     from pipeline.render.raster import _draw_triangle
 
     depth, won = inverse_depth.copy(), winner.copy()
     tiles, dirty = _tiles()
-    _draw_triangle(geometry, slot, 0, _whole(), *CAMERA.pixel_axes(), CAMERA.fx, CAMERA.fy, 0, CAMERA.height, depth,
-                   won, tiles, dirty, np.zeros(1, np.int64), False)
+    _draw_triangle(geometry, slot, 0, _whole(), *CAMERA.pixel_axes(), CAMERA.fx, CAMERA.fy, *band, depth, won, tiles,
+                   dirty, np.zeros(1, np.int64), False)
     return not (np.array_equal(depth, inverse_depth) and np.array_equal(won, winner))
 
 

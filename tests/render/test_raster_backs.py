@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from tests.render.test_bulk_proofs import CAMERA, _origin_and_focal, _random_triangles, _tiles, _whole, _z_buffer
+from tests.render.test_bulk_proofs import (CAMERA, _changes_the_frame, _origin_and_focal, _random_triangles, _refreshed,
+                                          _whole, _z_buffer)
 
 
 def _prepared_clusters(corners: np.ndarray) -> tuple[np.ndarray, object]:
@@ -56,31 +57,6 @@ def _floor_triangles(rng: np.random.Generator, count: int) -> np.ndarray:
     return corners.astype(np.float32)
 
 
-def _band_tiles(inverse_depth: np.ndarray, row_start: int, row_stop: int) -> np.ndarray:
-    """The fine tiles of the band row_start..row_stop, refreshed (stale values, which only prove less, are not
-    tested here: the z-buffer holds every triangle that could win)."""
-    from pipeline.render.raster import FINE_TILE, TILE, _refresh_tiles
-
-    rows = row_stop - row_start
-    tiles = np.zeros((-(-rows // TILE), -(-CAMERA.width // TILE)), np.float32)
-    fine = np.full((-(-rows // FINE_TILE), -(-CAMERA.width // FINE_TILE)), np.nan, np.float32)
-    _refresh_tiles(row_start, row_stop, inverse_depth, tiles, np.ones(tiles.shape, np.bool_), fine)
-    return fine
-
-
-def _changes_the_band(geometry: np.ndarray, slot: int, band: tuple[int, int], inverse_depth: np.ndarray,
-                      winner: np.ndarray) -> bool:
-    """Whether drawing the prepared triangle of `slot` into the rows `band` (before the z-buffer's owner in the
-    drawing order), without any occlusion test, changes a pixel's inverse depth or winner."""
-    from pipeline.render.raster import _draw_triangle
-
-    depth, won = inverse_depth.copy(), winner.copy()
-    tiles, dirty = _tiles()
-    _draw_triangle(geometry, slot, 0, _whole(), *CAMERA.pixel_axes(), CAMERA.fx, CAMERA.fy, *band, depth, won, tiles,
-                   dirty, np.zeros(1, np.int64), False)
-    return not (np.array_equal(depth, inverse_depth) and np.array_equal(won, winner))
-
-
 def _proofs(corners: np.ndarray, inverse_depth: np.ndarray, winner: np.ndarray,
             band: tuple[int, int] = (0, CAMERA.height)) -> tuple[np.ndarray, ...]:
     """For each triangle (in the clustered mesh's order, returned last) drawn into the rows `band`: whether
@@ -88,7 +64,7 @@ def _proofs(corners: np.ndarray, inverse_depth: np.ndarray, winner: np.ndarray,
     pixel of its box) do, and whether drawing it changes the frame."""
     from pipeline.render.raster import CLUSTER_SIZE, _covered_tiles_behind, _pixels_occluded, _prepared
 
-    fine = _band_tiles(inverse_depth, *band)
+    _, fine = _refreshed(inverse_depth, band)
     geometry, mesh = _prepared_clusters(corners)
     proved, box_proved, changes = [], [], []
     for triangle in range(len(corners)):
@@ -101,7 +77,7 @@ def _proofs(corners: np.ndarray, inverse_depth: np.ndarray, winner: np.ndarray,
         z_min = min(a[2], b[2], c[2])
         box_proved.append(z_min > 1e-6 and (top > bottom or left > right or _pixels_occluded(
             top, bottom, left, right, z_min, inverse_depth)))
-        changes.append(_changes_the_band(geometry[cluster], slot, band, inverse_depth, winner))
+        changes.append(_changes_the_frame(geometry[cluster], slot, inverse_depth, winner, band))
     return np.array(proved), np.array(box_proved), np.array(changes), mesh
 
 
