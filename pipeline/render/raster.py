@@ -837,8 +837,13 @@ def _fill_rows(a, b, c, det, triangle, top, bottom, left, right, pixel_x, pixel_
             first = int(np.ceil(min(max(low, left), right + 1)))
             last = int(np.floor(max(min(high, right), left - 1)))
         entered = False
+        # Unsigned indices (all >= 0 here): numba then skips its wrap-around of negative ones, 3 instructions per
+        # index of each pixel's loads and stores that the compiler cannot prove needless (~45 per pixel stored):
+        # the draw took 0.93-0.95 of a control's (bench poses, in-process, 6 rounds), the frames the same.
+        at_row, tile_row = np.uint64(row), np.uint64((row - row_start) // TILE)
         for column in range(first, last + 1):
-            x = pixel_x[column]
+            at = np.uint64(column)
+            x = pixel_x[at]
             w0, w1, w2 = e0[0] * x + r0, e1[0] * x + r1, e2[0] * x + r2
             if w0 < 0.0 or w1 < 0.0 or w2 < 0.0:
                 if entered:
@@ -846,11 +851,11 @@ def _fill_rows(a, b, c, det, triangle, top, bottom, left, right, pixel_x, pixel_
                 continue
             entered = True
             depth = np.float32((w0 + w1 + w2) * inverse_det)  # 1 / t: the plane's N . d over det(a, b, c)
-            held = inverse_depth[row, column]
-            if depth > held or (depth == held and held > 0.0 and _drawn_before(triangle, winner[row, column], rank)):
-                inverse_depth[row, column] = depth
-                winner[row, column] = triangle
-                dirty[(row - row_start) // TILE, column // TILE] = True
+            held = inverse_depth[at_row, at]
+            if depth > held or (depth == held and held > 0.0 and _drawn_before(triangle, winner[at_row, at], rank)):
+                inverse_depth[at_row, at] = depth
+                winner[at_row, at] = triangle
+                dirty[tile_row, np.uint64(column // TILE)] = True
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
