@@ -65,3 +65,35 @@ def test_the_previous_winners_are_taken_once_each_in_the_order_they_first_appear
         outside = np.ones(len(winner), bool)
         outside[row_start:row_stop] = False
         assert np.array_equal(emptied[outside], winner[outside]) and (inverse_depth[outside] == 1.0).all()
+
+
+def test_frames_drawn_in_bands_along_random_poses_are_the_bare_tests() -> None:
+    """One rasterizer drawn in two bands along random poses (each frame seeded by the last one's winners) among
+    random triangles: small and large ones, ones reaching past the image edges and behind the camera, and exact
+    copies (ties, won by the first in the drawing order). Every frame's winners are the bare test's and its z-buffer
+    is the one a new rasterizer draws in one band, bit for bit: the pixel loop's unsigned indices reach every pixel
+    the signed ones did, and no other."""
+    from pipeline.render.raster import ClusteredMesh
+    from tests.render.test_raycaster import _bare_test_winners
+    from tests.render.tiny_scenes import look_at
+
+    rng = np.random.default_rng(29)
+    centres = rng.uniform([-1.5, -1.0, -0.5], [1.5, 1.0, 2.5], (1200, 1, 3))
+    corners = centres + rng.normal(0.0, 1.0, (1200, 1, 1)) ** 2 * rng.normal(0.0, 0.08, (1200, 3, 3))
+    corners = np.concatenate([corners, corners[rng.choice(1200, 150, replace=False)]])  # copies: ties
+    vertices, faces = corners.reshape(-1, 3), np.arange(len(corners) * 3).reshape(-1, 3)
+    camera = Camera(64, 48, 40.0, 40.0, 31.7, 23.2)
+    mesh = ClusteredMesh(vertices, faces)
+    warm = Rasterizer(mesh, *camera.pixel_axes(), camera.fx, camera.fy)
+    for _ in range(5):
+        pose = look_at(rng.uniform([-0.8, -0.5, -1.5], [0.8, 0.5, 0.8]), rng.uniform([-1.0, -0.6, 1.0], [1.0, 0.6, 2.5]))
+        _, expected = _bare_test_winners(vertices, faces, camera, pose)
+        cold = Rasterizer(mesh, *camera.pixel_axes(), camera.fx, camera.fy)
+        cold.visible_clusters(pose)
+        cold.draw_band(slice(0, camera.height), pose)
+        warm.visible_clusters(pose)
+        for band in (slice(0, 17), slice(17, camera.height)):
+            warm.draw_band(band, pose)
+        assert np.array_equal(warm.winner, expected) and np.array_equal(cold.winner, expected)
+        assert np.array_equal(warm.inverse_depth.view(np.uint32), cold.inverse_depth.view(np.uint32))
+        assert (expected >= 0).mean() > 0.5
