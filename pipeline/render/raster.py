@@ -132,11 +132,8 @@ class Rasterizer:
     def visible_clusters(self, camera_to_world: np.ndarray) -> None:
         """The clusters inside the view, nearest first, with their pixel rectangles (for `draw_band`)."""
         pose = np.ascontiguousarray(camera_to_world, np.float64)
-        inside = _cull_clusters(self.mesh.low, self.mesh.high, pose, self.pixel_x, self.pixel_y, *self.focal,
-                                self.rects, self.nearest)
-        self.order = inside[np.argsort(self.nearest[inside], kind="stable")]
-        self.rank[:] = -1  # outside the view
-        self.rank[self.order] = np.arange(len(self.order))
+        self.order = _visible_order(self.mesh.low, self.mesh.high, pose, self.pixel_x, self.pixel_y, *self.focal,
+                                    self.rects, self.nearest, self.rank)
 
     def draw_band(self, rows: slice, camera_to_world: np.ndarray) -> None:
         """Z-buffer the visible clusters into rows `rows`: the nearest reordered triangle per pixel (-1: none)."""
@@ -172,6 +169,22 @@ def _triangle_index_type(triangles: int) -> type:
         raise ValueError(f"the mesh has {triangles} triangles; the rasterizer indexes at most 2**31 (2147483648): "
                          "split the scene's mesh into parts of at most that many")
     return np.int32
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _visible_order(low, high, pose, pixel_x, pixel_y, fx, fy, rects, nearest, rank):  # pragma: no cover (compiled)
+    """`_cull_clusters`' clusters sorted nearest first (a stable sort: of equal depths, the lower index first), and
+    each cluster's position in that order into `rank` (-1: outside the view). One compiled call for what numpy's
+    argsort, the fancy indexing and the rank's two writes took (~0.3 ms a bench frame in 5 Python-level calls)."""
+    inside = _cull_clusters(low, high, pose, pixel_x, pixel_y, fx, fy, rects, nearest)
+    keys = np.empty(len(inside), np.float64)
+    for k in range(len(inside)):
+        keys[k] = nearest[inside[k]]
+    order = inside[np.argsort(keys, kind="mergesort")]  # (numba's mergesort is stable, as numpy's "stable")
+    rank[:] = -1
+    for position in range(len(order)):
+        rank[order[position]] = position
+    return order
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
