@@ -176,7 +176,10 @@ def _resolve_depth_and_ids(corners, winner, pose, pixel_x, pixel_y, row_start, r
     the triangle's set-up took ~0.9 of the loop's ~1.5 ms a frame. Through the table a pixel's branch (is its winner
     in its slot?) is nearly always taken the same way: a band of the bench's frames fills a slot ~1.1 k times, not 36 k.
     Measured on the bench's winners, the resolve alone, 1 thread, in turns in one process: 0.85-0.93 of
-    `_resolve_rows`' time (a table of 256 entries 1.28, of 4096 1.10: its stores miss the L1 cache)."""
+    `_resolve_rows`' time (a table of 256 entries 1.28, of 4096 1.10: its stores miss the L1 cache). Measured slower:
+    a row's runs of one winner found first without branches, then their planes set up in a loop of their own and read
+    per pixel, 1.05-2.07 of `_resolve_rows` (the per-pixel reads are not vectorised); the table's entries copied per
+    pixel for a vectorised pass of the divisions, 1.05-1.07 of this loop."""
     width = len(pixel_x)
     ox, oy, oz = np.float32(pose[0, 3]), np.float32(pose[1, 3]), np.float32(pose[2, 3])
     column_terms = _column_terms(pose, pixel_x)  # as raster._resolve takes them: the same bits of every ray
