@@ -179,15 +179,39 @@ def _visible_order(low, high, chunk_low, chunk_high, pose, pixel_x, pixel_y, fx,
                    rank):  # pragma: no cover (compiled)
     """`_cull_clusters`' clusters sorted nearest first (a stable sort: of equal depths, the lower index first), and
     each cluster's position in that order into `rank` (-1: outside the view). One compiled call for what numpy's
-    argsort, the fancy indexing and the rank's two writes took (~0.3 ms a bench frame in 5 Python-level calls)."""
+    argsort, the fancy indexing and the rank's two writes took (sort and ranks 0.2 -> 0.13 ms a bench frame)."""
     inside = _cull_clusters(low, high, chunk_low, chunk_high, pose, pixel_x, pixel_y, fx, fy, rects, nearest)
     keys = np.empty(len(inside), np.float64)
     for k in range(len(inside)):
         keys[k] = nearest[inside[k]]
-    order = inside[np.argsort(keys, kind="mergesort")]  # (numba's mergesort is stable, as numpy's "stable")
+    order = inside[_stable_order(keys.view(np.uint64))]
     rank[:] = -1
     for position in range(len(order)):
         rank[order[position]] = position
+    return order
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _stable_order(keys):  # pragma: no cover (compiled)
+    """`np.argsort(keys, kind="stable")` of uint64 keys (the bits of non-negative float64 depths sort as the depths):
+    a least-significant-digit radix sort, a byte a pass, skipping the bytes all keys share. ~2 k visible clusters a
+    bench frame: 8 passes of 2 k keys against a comparison sort's ~11 (numpy's stable argsort and numba's mergesort
+    both took ~0.2 ms a frame)."""
+    order, spare = np.arange(len(keys)), np.empty(len(keys), np.int64)
+    counts = np.empty(257, np.int64)
+    for shift in range(0, 64, 8):
+        counts[:] = 0
+        for index in range(len(keys)):
+            counts[((keys[index] >> np.uint64(shift)) & np.uint64(255)) + 1] += 1
+        if counts.max() == len(keys):  # (every key has this byte: the pass would move nothing)
+            continue
+        for digit in range(256):  # (counts[digit]: where the keys of this byte start)
+            counts[digit + 1] += counts[digit]
+        for index in order:  # (in the order so far: keys of one byte keep it, so the sort is stable)
+            digit = (keys[index] >> np.uint64(shift)) & np.uint64(255)
+            spare[counts[digit]] = index
+            counts[digit] += 1
+        order, spare = spare, order
     return order
 
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.render.raster import CLUSTER_SIZE, ClusteredMesh, _chunk_boxes, _cull_clusters, _visible_order
+from pipeline.render.raster import (CLUSTER_SIZE, ClusteredMesh, _chunk_boxes, _cull_clusters, _stable_order,
+                                   _visible_order)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -89,3 +90,17 @@ def test_chunks_of_clusters_outside_the_view_are_dropped_whole_as_their_clusters
         dropped += sum(_box_outside_view(low, high, pose, pixel_x[0], pixel_x[-1], pixel_y[0], pixel_y[-1])
                        for low, high in zip(chunk_low, chunk_high))
     assert dropped > 0
+
+
+@pytest.mark.parametrize("size", [0, 1, 2, 300, 5000])
+def test_the_radix_order_of_depths_is_numpy_s_stable_argsort(size: int) -> None:
+    """`_stable_order` of non-negative float64 depths (as their bits) is `np.argsort(kind="stable")`: ties (a third
+    of the keys copy others), zeros, depths from micrometres to kilometres and keys equal in all but their lowest bit."""
+    rng = np.random.default_rng(size)
+    depths = np.exp(rng.uniform(np.log(1e-6), np.log(1e3), size))
+    depths[rng.random(size) < 0.1] = 0.0
+    copies = np.flatnonzero(rng.random(size) < 0.3)
+    depths[copies] = depths[rng.integers(0, size, len(copies))]
+    if size > 2:
+        depths[1] = np.nextafter(depths[0], np.inf)
+    np.testing.assert_array_equal(_stable_order(depths.view(np.uint64)), np.argsort(depths, kind="stable"))
