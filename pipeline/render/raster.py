@@ -27,6 +27,8 @@ in benchmarks/bench_render.py).
 
 from __future__ import annotations
 
+import weakref
+
 import numba
 import numpy as np
 
@@ -52,6 +54,7 @@ _BEHIND = 1e-6  # metres: a cluster corner nearer than this to the camera plane 
 # first (which prove only what the pixels prove, and refresh stale tiles on the way): draw 0.95 of the tiles-first
 # order's (bench poses, draw over resolve in one process, 3 process pairs; 32: 0.98, 512: 0.99)
 PIXELS_FIRST_BOX = 128
+_CHUNK_MARGIN = 1e-6  # metres: a chunk of clusters is dropped whole only when outside the view by more than this
 
 
 class ClusteredMesh:
@@ -132,11 +135,8 @@ class Rasterizer:
     def visible_clusters(self, camera_to_world: np.ndarray) -> None:
         """The clusters inside the view, nearest first, with their pixel rectangles (for `draw_band`)."""
         pose = np.ascontiguousarray(camera_to_world, np.float64)
-        inside = _cull_clusters(self.mesh.low, self.mesh.high, pose, self.pixel_x, self.pixel_y, *self.focal,
-                                self.rects, self.nearest)
-        self.order = inside[np.argsort(self.nearest[inside], kind="stable")]
-        self.rank[:] = -1  # outside the view
-        self.rank[self.order] = np.arange(len(self.order))
+        self.order = _visible_order(self.mesh.low, self.mesh.high, *_chunk_boxes(self.mesh), pose, self.pixel_x,
+                                    self.pixel_y, *self.focal, self.rects, self.nearest, self.rank)
 
     def draw_band(self, rows: slice, camera_to_world: np.ndarray) -> None:
         """Z-buffer the visible clusters into rows `rows`: the nearest reordered triangle per pixel (-1: none)."""
@@ -175,16 +175,62 @@ def _triangle_index_type(triangles: int) -> type:
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _cull_clusters(low, high, pose, pixel_x, pixel_y, fx, fy, rects, nearest):  # pragma: no cover (compiled)
+def _visible_order(low, high, chunk_low, chunk_high, pose, pixel_x, pixel_y, fx, fy, rects, nearest,
+                   rank):  # pragma: no cover (compiled)
+    """`_cull_clusters`' clusters sorted nearest first (a stable sort: of equal depths, the lower index first), and
+    each cluster's position in that order into `rank` (-1: outside the view). One compiled call for what numpy's
+    argsort, the fancy indexing and the rank's two writes took (sort and ranks 0.2 -> 0.13 ms a bench frame)."""
+    inside = _cull_clusters(low, high, chunk_low, chunk_high, pose, pixel_x, pixel_y, fx, fy, rects, nearest)
+    keys = np.empty(len(inside), np.float64)
+    for k in range(len(inside)):
+        keys[k] = nearest[inside[k]]
+    order = inside[_stable_order(keys.view(np.uint64))]
+    rank[:] = -1
+    for position in range(len(order)):
+        rank[order[position]] = position
+    return order
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _stable_order(keys):  # pragma: no cover (compiled)
+    """`np.argsort(keys, kind="stable")` of uint64 keys (the bits of non-negative float64 depths sort as the depths):
+    a least-significant-digit radix sort, a byte a pass, skipping the bytes all keys share. ~2 k visible clusters a
+    bench frame: 8 passes of 2 k keys against a comparison sort's ~11 (numpy's stable argsort and numba's mergesort
+    both took ~0.2 ms a frame)."""
+    order, spare = np.arange(len(keys)), np.empty(len(keys), np.int64)
+    counts = np.empty(257, np.int64)
+    for shift in range(0, 64, 8):
+        counts[:] = 0
+        for index in range(len(keys)):
+            counts[((keys[index] >> np.uint64(shift)) & np.uint64(255)) + 1] += 1
+        if counts.max() == len(keys):  # (every key has this byte: the pass would move nothing)
+            continue
+        for digit in range(256):  # (counts[digit]: where the keys of this byte start)
+            counts[digit + 1] += counts[digit]
+        for index in order:  # (in the order so far: keys of one byte keep it, so the sort is stable)
+            digit = (keys[index] >> np.uint64(shift)) & np.uint64(255)
+            spare[counts[digit]] = index
+            counts[digit] += 1
+        order, spare = spare, order
+    return order
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _cull_clusters(low, high, chunk_low, chunk_high, pose, pixel_x, pixel_y, fx, fy, rects,
+                   nearest):  # pragma: no cover (compiled)
     """Indices of the clusters whose boxes reach into the view (in front of the camera, inside the outermost
     pixel rays); for each, its pixel rectangle (row0, row1, col0, col1, inclusive) and nearest planar depth.
-    The boxes are taken into the camera frame CLUSTER_SIZE at a time by `_box_views`, on vector lanes."""
+    The boxes are taken into the camera frame CLUSTER_SIZE at a time by `_box_views`, on vector lanes; a chunk whose
+    box (`_chunk_boxes`) lies outside the view by a margin (`_box_outside_view`) is dropped whole, untested."""
     height, width = len(pixel_y), len(pixel_x)
     inside = np.empty(len(low), np.int64)
     boxes = np.empty(6 * CLUSTER_SIZE, np.float64)  # a chunk's low and high corners, one row per coordinate
     views = np.empty(7 * CLUSTER_SIZE, np.float64)
     count = 0
     for chunk in range(0, len(low), CLUSTER_SIZE):
+        if _box_outside_view(chunk_low[chunk // CLUSTER_SIZE], chunk_high[chunk // CLUSTER_SIZE], pose, pixel_x[0],
+                             pixel_x[-1], pixel_y[0], pixel_y[-1]):
+            continue
         size = min(CLUSTER_SIZE, len(low) - chunk)
         for slot in range(size):
             for k in range(3):
@@ -210,6 +256,42 @@ def _cull_clusters(low, high, pose, pixel_x, pixel_y, fx, fy, rects, nearest):  
             inside[count] = cluster
             count += 1
     return inside[:count]
+
+
+_CHUNK_BOXES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # mesh -> (low, high) of its chunks of clusters
+
+
+def _chunk_boxes(mesh: ClusteredMesh) -> tuple[np.ndarray, np.ndarray]:
+    """The bounding boxes (low, high: (chunks, 3) float64) of each CLUSTER_SIZE consecutive clusters of `mesh` (the
+    chunks `_cull_clusters` tests together), taken once per mesh."""
+    boxes = _CHUNK_BOXES.get(mesh)
+    if boxes is None:
+        starts = np.arange(0, len(mesh.low), CLUSTER_SIZE)
+        boxes = _CHUNK_BOXES[mesh] = (np.minimum.reduceat(mesh.low, starts), np.maximum.reduceat(mesh.high, starts))
+    return boxes
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _box_outside_view(low, high, pose, x0, x1, y0, y1):  # pragma: no cover (compiled)
+    """Whether every corner of a world-frame box lies behind the camera, or outside one side of the view, by more than
+    _CHUNK_MARGIN: then so does every corner of every box inside it (each test is affine in the corner, and the
+    margin is ~10^5 times the rounding of `_corner_view`'s float64 arithmetic on coordinates of up to 10^4 m), and
+    `_cull_clusters` would drop each of them (its test of a side is the same affine function, with a margin of 0)."""
+    behind = left = right = above = below = True
+    margin = 1e-9  # (`_corner_view`'s, on the slopes)
+    for corner in range(8):
+        px = (high[0] if corner & 1 else low[0]) - pose[0, 3]
+        py = (high[1] if corner & 2 else low[1]) - pose[1, 3]
+        pz = (high[2] if corner & 4 else low[2]) - pose[2, 3]
+        x = pose[0, 0] * px + pose[1, 0] * py + pose[2, 0] * pz
+        y = pose[0, 1] * px + pose[1, 1] * py + pose[2, 1] * pz
+        z = pose[0, 2] * px + pose[1, 2] * py + pose[2, 2] * pz
+        behind &= z < -_CHUNK_MARGIN
+        left &= x - (x0 - margin) * z < -_CHUNK_MARGIN
+        right &= (x1 + margin) * z - x < -_CHUNK_MARGIN
+        above &= y - (y0 - margin) * z < -_CHUNK_MARGIN
+        below &= (y1 + margin) * z - y < -_CHUNK_MARGIN
+    return behind or left or right or above or below
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")

@@ -185,3 +185,52 @@ def test_reordered_tables_kept_per_mesh_are_bounded() -> None:
     for _ in range(3 * _TABLES_PER_MESH):  # renderers that each bring labels of their own
         by_triangle(mesh, SceneLabels(scene).dense_of_face)
     assert len(_BY_TRIANGLE[mesh]) == _TABLES_PER_MESH
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_depth_and_ids_through_the_table_of_winners_are_the_per_run_resolve_s(seed: int) -> None:
+    """`_resolve_depth_and_ids` (each winner's plane, id and label kept in a table of TRIANGLE_SLOTS entries) writes
+    the millimetres, ids and segment counts of `_resolve_rows` (each taken anew per run of a winner), bit for bit, on
+    random triangles and winners: runs of every length, misses, winners that share a slot (t and t + TRIANGLE_SLOTS,
+    in turns) and a clip range that cuts through the depths."""
+    from pipeline.io.segments import empty_boxes
+    from pipeline.render.fused import (_NO_DECODE, _NO_ENCODE, _NO_RECORDS, _NO_RGB, _NO_SCALE, TRIANGLE_SLOTS,
+                                       _resolve_depth_and_ids, _resolve_rows)
+
+    rng = np.random.default_rng(seed)
+    height, width, triangles = 37, 53, 3 * TRIANGLE_SLOTS
+    corners = rng.uniform(-1.0, 1.0, (triangles, 3, 3)).astype(np.float32)
+    corners[..., 2] = rng.uniform(3.7, 4.3, (triangles, 3))  # (planes of depths ~3.7 to 4.3 m at the pixels)
+    pool = np.concatenate([[-1], rng.integers(0, triangles - TRIANGLE_SLOTS, 50)])
+    pool = np.concatenate([pool, pool[pool >= 0][:10] + TRIANGLE_SLOTS])  # (sharing slots with others in the pool)
+    lengths = rng.geometric(0.2, height * width)  # runs of ~5 pixels, some of dozens
+    winner = np.repeat(rng.choice(pool, len(lengths)), lengths)[:height * width].reshape(height, width)
+    winner = winner.astype(np.int32)
+    dense_ids = np.unique(np.append(rng.integers(1, 1000, 12), 0)).astype(np.uint32)
+    label_of_triangle = rng.integers(0, len(dense_ids), triangles).astype(np.int32)
+    pose = np.eye(4)
+    pose[:3, 3] = rng.uniform(-0.2, 0.2, 3)
+    pixel_x, pixel_y = np.linspace(-0.6, 0.6, width), np.linspace(-0.5, 0.5, height)
+    near, far = np.float32(3.8), np.float32(4.4)  # (both ends clip)
+    found, expected = [], []
+    for resolve in ("table", "per run"):
+        millimetres, panoptic = np.full((height, width), 7, np.uint16), np.full((height, width), 7, np.uint32)
+        counts = []
+        for rows in (slice(0, 20), slice(20, height)):
+            areas, boxes = empty_boxes(len(dense_ids), height, width)
+            arguments = (corners, winner, pose, pixel_x, pixel_y, rows.start, rows.stop, near, far, dense_ids,
+                         label_of_triangle, millimetres, panoptic, areas, boxes)
+            if resolve == "table":
+                _resolve_depth_and_ids(*arguments)
+            else:
+                _resolve_rows(*arguments, False, _NO_RECORDS, False, _NO_RGB, False, _NO_SCALE, _NO_DECODE, _NO_ENCODE)
+            counts.append((areas, boxes))
+        (found if resolve == "table" else expected).append((millimetres, panoptic, counts))
+    (millimetres, panoptic, counts), = found
+    (expected_millimetres, expected_panoptic, expected_counts), = expected
+    assert (millimetres > 0).mean() > 0.1 and (millimetres == 0).mean() > 0.1  # (hits and misses, clipped ones too)
+    np.testing.assert_array_equal(millimetres, expected_millimetres)
+    np.testing.assert_array_equal(panoptic, expected_panoptic)
+    for (areas, boxes), (expected_areas, expected_boxes) in zip(counts, expected_counts):
+        np.testing.assert_array_equal(areas, expected_areas)
+        np.testing.assert_array_equal(boxes, expected_boxes)
