@@ -426,6 +426,12 @@ def _draw(lanes, planes, starts, order, rank, rects, nearest, pose, pixel_x, pix
         if _occluded(rect, nearest[cluster], row_start, row_stop, inverse_depth, tiles, dirty):
             continue
         first, stop = starts[cluster], starts[cluster + 1]
+        # All of the cluster is set up (66.2 k triangles a bench pose, of which `_hide_prepared` leaves 14.4 k).
+        # Parts of 8 triangles proved hidden by their boxes first hid 27 % of the parts (set-ups 66.2 k -> 48.5 k)
+        # but cost more than they saved: draw 1.09-1.10 of this, set up part by part or in one span (one process,
+        # both trees' raster.py interleaved per pose, min of 5; identical code 0.994; parts of 16, 18 % hidden, no
+        # better in process pairs); facing-away triangles deferred without their window test here (left to
+        # `_hide_deferred`'s fresher tiles): 1.06.
         _prepare(lanes, cluster * LANE_BLOCK, stop - first, pose, x0, y0, fx, fy, geometry)
         _hide_prepared(geometry, stop - first, rect, row_start, row_stop, drawn[first:stop], tiles, fine, skip)
         group_start = count
