@@ -116,7 +116,7 @@ def _areas_and_boxes(dense: np.ndarray, count: int) -> tuple[np.ndarray, np.ndar
         while start < width:
             label = dense[row, start]
             end = start + 1
-            while end + RUN_BLOCK <= width and _block_holds(dense, row, end, label):
+            while end + RUN_BLOCK <= width and block_holds(dense, row, end, label):
                 end += RUN_BLOCK
             while end < width and dense[row, end] == label:
                 end += 1
@@ -126,7 +126,7 @@ def _areas_and_boxes(dense: np.ndarray, count: int) -> tuple[np.ndarray, np.ndar
 
 
 @numba.njit(nogil=True, cache=True, inline="always")
-def _block_holds(dense: np.ndarray, row: int, start: int, label: int) -> bool:  # pragma: no cover (compiled)
+def block_holds(dense: np.ndarray, row: int, start: int, label: int) -> bool:  # pragma: no cover (compiled)
     """Whether the RUN_BLOCK pixels of a row from `start` on all hold `label` (every one tested, no early exit:
     the compiler turns the fixed-length loop into a few vector compares)."""
     same = True

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
-from pipeline.io.segments import RUN_BLOCK, FrameSegments, _block_holds, add_run, empty_boxes, segments_of
+from pipeline.io.segments import RUN_BLOCK, FrameSegments, add_run, block_holds, empty_boxes, segments_of
 from pipeline.render.lighting import Shader, SurfaceColors, _albedo_of_terms, _face_terms, _lit_albedo, _spot_of
 from pipeline.render.raster import _column_terms, _intersect, _row_rays, _triangle_frame, _unit_normal
 from pipeline.render.sensors import millimetres_of
@@ -231,13 +231,13 @@ def _fill_slot(table, words, slot, corners, triangle, ox, oy, oz, dense_ids,
 @numba.njit(nogil=True, cache=True, inline="always")
 def _count_runs(labels, row, areas, boxes):  # pragma: no cover (compiled)
     """Count the runs of one label along `labels[0]` (image row `row`) into `areas` and `boxes` (`add_run`), following
-    a run RUN_BLOCK pixels at a time (`_block_holds`: one branch per block, not per pixel)."""
+    a run RUN_BLOCK pixels at a time (`block_holds`: one branch per block, not per pixel)."""
     width = labels.shape[1]
     start = 0
     while start < width:
         label = labels[0, start]
         end = start + 1
-        while end + RUN_BLOCK <= width and _block_holds(labels, 0, end, label):
+        while end + RUN_BLOCK <= width and block_holds(labels, 0, end, label):
             end += RUN_BLOCK
         while end < width and labels[0, end] == label:
             end += 1

@@ -27,8 +27,6 @@ in benchmarks/bench_render.py).
 
 from __future__ import annotations
 
-import weakref
-
 import numba
 import numpy as np
 
@@ -67,6 +65,8 @@ class ClusteredMesh:
         planes: (F, 4) float32 plane of each triangle: N and N . v0, N = (v1 - v0) x (v2 - v0) (which side
             of it a camera lies on tells whether the triangle faces it, before its corners are transformed).
         low, high: (C, 3) float64 bounding boxes of the clusters.
+        chunk_low, chunk_high: (C / CLUSTER_SIZE, 3) float64 bounding boxes of each CLUSTER_SIZE consecutive
+            clusters (the chunks `_cull_clusters` tests together, and drops whole when outside the view).
         lanes: (C LANE_BLOCK,) float32 the corners again, cluster by cluster, in 9 rows of CLUSTER_SIZE (x of
             the first corners, their y, z, then the second's, the third's; a last short cluster padded), so that
             the camera transform and projection of a cluster's triangles run several at a time (`_prepare`).
@@ -84,6 +84,9 @@ class ClusteredMesh:
         self.starts = np.append(np.arange(0, len(faces), CLUSTER_SIZE), len(faces)).astype(np.int64)
         self.low = np.minimum.reduceat(self.corners.min(axis=1), self.starts[:-1]).astype(np.float64)
         self.high = np.maximum.reduceat(self.corners.max(axis=1), self.starts[:-1]).astype(np.float64)
+        chunks = np.arange(0, len(self.low), CLUSTER_SIZE)
+        self.chunk_low = np.minimum.reduceat(self.low, chunks)
+        self.chunk_high = np.maximum.reduceat(self.high, chunks)
         padded = np.zeros((len(self.starts) - 1) * CLUSTER_SIZE * 9, np.float32)
         padded[:self.corners.size] = self.corners.ravel()
         self.lanes = np.ascontiguousarray(padded.reshape(-1, CLUSTER_SIZE, 9).transpose(0, 2, 1)).ravel()
@@ -135,8 +138,8 @@ class Rasterizer:
     def visible_clusters(self, camera_to_world: np.ndarray) -> None:
         """The clusters inside the view, nearest first, with their pixel rectangles (for `draw_band`)."""
         pose = np.ascontiguousarray(camera_to_world, np.float64)
-        self.order = _visible_order(self.mesh.low, self.mesh.high, *_chunk_boxes(self.mesh), pose, self.pixel_x,
-                                    self.pixel_y, *self.focal, self.rects, self.nearest, self.rank)
+        self.order = _visible_order(self.mesh.low, self.mesh.high, self.mesh.chunk_low, self.mesh.chunk_high, pose,
+                                    self.pixel_x, self.pixel_y, *self.focal, self.rects, self.nearest, self.rank)
 
     def draw_band(self, rows: slice, camera_to_world: np.ndarray) -> None:
         """Z-buffer the visible clusters into rows `rows`: the nearest reordered triangle per pixel (-1: none)."""
@@ -221,7 +224,7 @@ def _cull_clusters(low, high, chunk_low, chunk_high, pose, pixel_x, pixel_y, fx,
     """Indices of the clusters whose boxes reach into the view (in front of the camera, inside the outermost
     pixel rays); for each, its pixel rectangle (row0, row1, col0, col1, inclusive) and nearest planar depth.
     The boxes are taken into the camera frame CLUSTER_SIZE at a time by `_box_views`, on vector lanes; a chunk whose
-    box (`_chunk_boxes`) lies outside the view by a margin (`_box_outside_view`) is dropped whole, untested."""
+    box (`ClusteredMesh.chunk_low`, `chunk_high`) lies outside the view by a margin (`_box_outside_view`) is dropped whole, untested."""
     height, width = len(pixel_y), len(pixel_x)
     inside = np.empty(len(low), np.int64)
     boxes = np.empty(6 * CLUSTER_SIZE, np.float64)  # a chunk's low and high corners, one row per coordinate
@@ -256,19 +259,6 @@ def _cull_clusters(low, high, chunk_low, chunk_high, pose, pixel_x, pixel_y, fx,
             inside[count] = cluster
             count += 1
     return inside[:count]
-
-
-_CHUNK_BOXES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # mesh -> (low, high) of its chunks of clusters
-
-
-def _chunk_boxes(mesh: ClusteredMesh) -> tuple[np.ndarray, np.ndarray]:
-    """The bounding boxes (low, high: (chunks, 3) float64) of each CLUSTER_SIZE consecutive clusters of `mesh` (the
-    chunks `_cull_clusters` tests together), taken once per mesh."""
-    boxes = _CHUNK_BOXES.get(mesh)
-    if boxes is None:
-        starts = np.arange(0, len(mesh.low), CLUSTER_SIZE)
-        boxes = _CHUNK_BOXES[mesh] = (np.minimum.reduceat(mesh.low, starts), np.maximum.reduceat(mesh.high, starts))
-    return boxes
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
