@@ -188,7 +188,7 @@ def test_reordered_tables_kept_per_mesh_are_bounded() -> None:
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_depth_and_ids_through_the_table_of_winners_are_the_per_run_resolve_s(seed: int) -> None:
+def test_depth_and_ids_through_the_table_of_winners_equal_the_per_run_resolve(seed: int) -> None:
     """`_resolve_depth_and_ids` (each winner's plane, id and label kept in a table of TRIANGLE_SLOTS entries) writes
     the millimetres, ids and segment counts of `_resolve_rows` (each taken anew per run of a winner), bit for bit, on
     random triangles and winners: runs of every length, misses, winners that share a slot (t and t + TRIANGLE_SLOTS,
