@@ -186,7 +186,7 @@ def _visible_order(low, high, chunk_low, chunk_high, pose, pixel_x, pixel_y, fx,
     inside = _cull_clusters(low, high, chunk_low, chunk_high, pose, pixel_x, pixel_y, fx, fy, rects, nearest)
     keys = np.empty(len(inside), np.float64)
     for k in range(len(inside)):
-        keys[k] = nearest[inside[k]]
+        keys[k] = nearest[inside[k]] + 0.0  # (-0.0 becomes 0.0: its bits would sort after every depth)
     order = inside[_stable_order(keys.view(np.uint64))]
     rank[:] = -1
     for position in range(len(order)):

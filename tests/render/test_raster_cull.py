@@ -102,3 +102,21 @@ def test_the_radix_order_of_depths_is_numpy_s_stable_argsort(size: int) -> None:
     if size > 2:
         depths[1] = np.nextafter(depths[0], np.inf)
     np.testing.assert_array_equal(_stable_order(depths.view(np.uint64)), np.argsort(depths, kind="stable"))
+
+
+def test_a_box_touching_the_camera_plane_at_minus_zero_sorts_with_the_nearest() -> None:
+    """A cluster whose box reaches the camera plane has nearest depth max(z, 0.0), which is -0.0 when its corner's z
+    is -0.0 (a corner on the plane, every term of its camera-frame z a negative zero): it sorts as 0.0 does (here
+    first), although the bits of -0.0 sort after those of every non-negative float64."""
+    low = np.array([[-1.0, -1.0, 0.0], [-1.0, -1.0, 0.5], [0.2, 0.2, 2.0]])
+    high = low + np.array([[1.5, 1.5, 1.0], [1.5, 1.5, 1.0], [0.5, 0.5, 0.5]])
+    pose = np.diag([1.0, -1.0, -1.0, 1.0])  # at the origin, looking down -z: a corner at z = 0 gets camera z -0.0
+    low[:, 2], high[:, 2] = -high[:, 2], -low[:, 2]  # (the boxes in front of this camera)
+    low[0, 2], high[0, 2] = -1.0, 0.0  # the first box's top face on the camera plane, its corners at x, y < 0
+    pixel_x, pixel_y = np.linspace(-0.7, 0.7, 64), np.linspace(-0.5, 0.5, 48)
+    rects, nearest, rank = np.zeros((3, 4), np.int64), np.zeros(3), np.full(3, -1)
+    order = _visible_order(low, high, *_whole_view(1), pose, pixel_x, pixel_y, 50.0, 50.0, rects, nearest, rank)
+    assert np.signbit(nearest[0]) and nearest[0] == 0.0  # (the case: a negative zero)
+    inside = np.sort(order)
+    np.testing.assert_array_equal(order, inside[np.argsort(nearest[inside], kind="stable")])
+    assert len(order) == 3 and order[0] == 0
