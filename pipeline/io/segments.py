@@ -112,21 +112,30 @@ def _areas_and_boxes(dense: np.ndarray, count: int) -> tuple[np.ndarray, np.ndar
     height, width = dense.shape
     areas, boxes = empty_boxes(count, height, width)
     for row in range(height):
-        start = 0
-        while start < width:
-            label = dense[row, start]
-            end = start + 1
-            while end + RUN_BLOCK <= width and block_holds(dense, row, end, label):
-                end += RUN_BLOCK
-            while end < width and dense[row, end] == label:
-                end += 1
-            add_run(areas, boxes, label, row, start, end)
-            start = end
+        count_row_runs(dense, row, row, areas, boxes)
     return areas, boxes
 
 
 @numba.njit(nogil=True, cache=True, inline="always")
-def block_holds(dense: np.ndarray, row: int, start: int, label: int) -> bool:  # pragma: no cover (compiled)
+def count_row_runs(dense: np.ndarray, source: int, row: int, areas: np.ndarray,
+                   boxes: np.ndarray) -> None:  # pragma: no cover (compiled)
+    """Count the runs of one label along `dense[source]` (image row `row`) into `areas` and `boxes` (`add_run`),
+    following a run RUN_BLOCK pixels at a time (`_block_holds`: one branch per block, not per pixel)."""
+    width = dense.shape[1]
+    start = 0
+    while start < width:
+        label = dense[source, start]
+        end = start + 1
+        while end + RUN_BLOCK <= width and _block_holds(dense, source, end, label):
+            end += RUN_BLOCK
+        while end < width and dense[source, end] == label:
+            end += 1
+        add_run(areas, boxes, label, row, start, end)
+        start = end
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _block_holds(dense: np.ndarray, row: int, start: int, label: int) -> bool:  # pragma: no cover (compiled)
     """Whether the RUN_BLOCK pixels of a row from `start` on all hold `label` (every one tested, no early exit:
     the compiler turns the fixed-length loop into a few vector compares)."""
     same = True

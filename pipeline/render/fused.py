@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
-from pipeline.io.segments import RUN_BLOCK, FrameSegments, add_run, block_holds, empty_boxes, segments_of
+from pipeline.io.segments import FrameSegments, add_run, count_row_runs, empty_boxes, segments_of
 from pipeline.render.lighting import Shader, SurfaceColors, _albedo_of_terms, _face_terms, _lit_albedo, _spot_of
 from pipeline.render.raster import _column_terms, _intersect, _row_rays, _triangle_frame, _unit_normal
 from pipeline.render.sensors import millimetres_of
@@ -190,7 +190,7 @@ def _resolve_depth_and_ids(corners, winner, pose, pixel_x, pixel_y, row_start, r
     table = np.empty((TRIANGLE_SLOTS, 8), np.float32)
     words = table.view(np.uint32)
     depths = np.empty(width, np.float32)
-    row_labels = np.empty((1, width), np.uint32)  # (2-D for `_count_runs`)
+    row_labels = np.empty((1, width), np.uint32)  # (2-D for `count_row_runs`)
     for row in range(row_start, row_stop):
         _row_rays(column_terms, pose, pixel_y[row], rays)
         for column in range(width):
@@ -208,7 +208,7 @@ def _resolve_depth_and_ids(corners, winner, pose, pixel_x, pixel_y, row_start, r
             millimetres[row, column] = millimetres_of(depths[column], near, far)  # (0 for any t not kept)
             panoptic[row, column] = panoptic[row, column] if hit else np.uint32(0)
             row_labels[0, column] = row_labels[0, column] if hit else np.uint32(0)
-        _count_runs(row_labels, row, areas, boxes)
+        count_row_runs(row_labels, 0, row, areas, boxes)
 
 
 @numba.njit(nogil=True, cache=True, inline="always")
@@ -226,23 +226,6 @@ def _fill_slot(table, words, slot, corners, triangle, ox, oy, oz, dense_ids,
     table[slot, 3] = frame[12] if triangle >= 0 else np.float32(0.0)
     label = label_of_triangle[max(triangle, 0)]
     words[slot, 4], words[slot, 5] = dense_ids[label], label
-
-
-@numba.njit(nogil=True, cache=True, inline="always")
-def _count_runs(labels, row, areas, boxes):  # pragma: no cover (compiled)
-    """Count the runs of one label along `labels[0]` (image row `row`) into `areas` and `boxes` (`add_run`), following
-    a run RUN_BLOCK pixels at a time (`block_holds`: one branch per block, not per pixel)."""
-    width = labels.shape[1]
-    start = 0
-    while start < width:
-        label = labels[0, start]
-        end = start + 1
-        while end + RUN_BLOCK <= width and block_holds(labels, 0, end, label):
-            end += RUN_BLOCK
-        while end < width and labels[0, end] == label:
-            end += 1
-        add_run(areas, boxes, label, row, start, end)
-        start = end
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")

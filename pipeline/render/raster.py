@@ -224,7 +224,8 @@ def _cull_clusters(low, high, chunk_low, chunk_high, pose, pixel_x, pixel_y, fx,
     """Indices of the clusters whose boxes reach into the view (in front of the camera, inside the outermost
     pixel rays); for each, its pixel rectangle (row0, row1, col0, col1, inclusive) and nearest planar depth.
     The boxes are taken into the camera frame CLUSTER_SIZE at a time by `_box_views`, on vector lanes; a chunk whose
-    box (`ClusteredMesh.chunk_low`, `chunk_high`) lies outside the view by a margin (`_box_outside_view`) is dropped whole, untested."""
+    box (`ClusteredMesh.chunk_low`, `chunk_high`) lies outside the view by a margin (`_box_outside_view`) is
+    dropped whole, untested."""
     height, width = len(pixel_y), len(pixel_x)
     inside = np.empty(len(low), np.int64)
     boxes = np.empty(6 * CLUSTER_SIZE, np.float64)  # a chunk's low and high corners, one row per coordinate
